@@ -1,0 +1,188 @@
+"""Stage 3b: lay out the generated module of a model.
+
+One ``sympy.cse`` runs over every output of the model at once, so a term shared
+by the forcing, the gaps and their Jacobian (``sin(theta_box)``, say) gets one
+name everywhere; each function then takes, in order, only the intermediate
+terms its own outputs need. Every function body has the same shape::
+
+    def phi(t, q, p, out):
+        \"\"\"doc\"\"\"
+        # Unpack inputs
+        x_box = q[0]
+        # Intermediate terms (3)
+        _x0 = math.sin(theta_box)
+        # Output terms
+        out[0] = ...
+        # Total ops: 42
+
+Functions fill preallocated arrays in place and use only ``math``: Numba
+compiles them in nopython mode, and they run as plain Python too. Before a
+function is emitted, every free symbol of its outputs is checked against its
+declared inputs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import sympy as sp
+
+from .model import CodegenError, Model
+from .printer import KernelPrinter
+from .version import GENERATOR
+
+#: Inputs a function can take, in signature order.
+_ARG_ORDER = ("t", "q", "qd", "p")
+
+
+@dataclass
+class Function:
+    name: str
+    args: tuple[str, ...]           #: from _ARG_ORDER
+    outputs: list[sp.Expr]          #: flattened outputs
+    shape: tuple[int, ...] | None   #: shape of `out`, or None for a scalar return
+    doc: str
+
+
+def functions(model: Model) -> list[Function]:
+    """The functions a model emits: only those its structure needs."""
+    if not model.mass_is_constant_diagonal:
+        raise CodegenError(
+            f"model {model.name!r}: the mass matrix is not constant and diagonal; "
+            "this compiler emits accel() = f / diag(M) and needs it to be")
+    n, C = len(model.q), model.phi.shape[0]
+    diag = [model.M[i, i] for i in range(n)]
+    fs = [
+        Function("mass_matrix", ("p",), list(model.M), (n, n),
+                 "M: (n, n) mass matrix, constant for this model."),
+        Function("inverse_mass", ("p",), [1 / m for m in diag], (n,),
+                 "diag(M^-1): (n,) inverse of the (diagonal) mass matrix."),
+        Function("forcing", ("t", "q", "qd", "p"), list(model.f), (n,),
+                 "f: (n,) right-hand side of M qdd = f (forces, gravity, potential)."),
+        Function("accel", ("t", "q", "qd", "p"), [fi / m for fi, m in zip(model.f, diag)], (n,),
+                 "qdd: (n,) accelerations M^-1 f between impacts."),
+        Function("phi", ("t", "q", "p"), list(model.phi), (C,),
+                 "phi: (C,) contact gaps, >= 0 when apart."),
+        Function("phi_q", ("t", "q", "p"), list(model.phi_q), (C, n),
+                 "phi_q: (C, n) Jacobian of the gaps with respect to q."),
+    ]
+    if model.phi_t is not None:
+        fs.append(Function("phi_t", ("t", "q", "p"), list(model.phi_t), (C,),
+                           "phi_t: (C,) explicit time derivative of the gaps (moving box)."))
+    if model.box_motion is not None:
+        fs.append(Function("box_motion", ("t", "p"), list(model.box_motion), (6,),
+                           "(6,) the prescribed box's pose (x, y, theta) and rates."))
+    fs.append(Function("energy", ("t", "q", "qd", "p"), [model.energy], None,
+                       "Kinetic + gravity + [potential] energy of both bodies (a float)."))
+    return fs
+
+
+def _inputs(model: Model) -> dict[str, dict[sp.Symbol, tuple[str, str]]]:
+    """For each argument: symbol -> (local name, slot text)."""
+    return {
+        "t": {model.t: ("t", "")},
+        "q": {s: (s.name, f"q[{i}]") for i, s in enumerate(model.q)},
+        "qd": {s: (s.name, f"qd[{i}]") for i, s in enumerate(model.qd)},
+        "p": {s: (f"p_{s.name}", f"p[{i}]") for i, s in enumerate(model.p)},
+    }
+
+
+def emit_module(model: Model, command: str) -> str:
+    """The full text of the generated module for `model`."""
+    fs = functions(model)
+    inputs = _inputs(model)
+    for fn in fs:  # every free symbol must be a declared input of its function
+        declared = set().union(*(inputs[a] for a in fn.args))
+        stray = set().union(*(e.free_symbols for e in fn.outputs)) - declared
+        if stray:
+            raise CodegenError(f"{fn.name}: undeclared symbols {sorted(map(str, stray))}")
+
+    everything = [e for fn in fs for e in fn.outputs]
+    temps = sp.numbered_symbols("_x", real=True)
+    replacements, reduced = sp.cse(everything, symbols=temps, order="canonical")
+    names = {s: local for arg in inputs.values() for s, (local, _) in arg.items()}
+    names |= {sym: sym.name for sym, _ in replacements}
+    printer = KernelPrinter(names)
+    position = {sym: i for i, (sym, _) in enumerate(replacements)}
+
+    bodies, start = [], 0
+    for fn in fs:
+        outs = reduced[start:start + len(fn.outputs)]
+        start += len(fn.outputs)
+        bodies.append(_function(fn, outs, replacements, position, inputs, printer))
+
+    header = [
+        "# " + "-" * 77,
+        f"# Generated by {GENERATOR}",
+        f"# Model: {model.name}, hash {_model_hash(model)}",
+        "# Do NOT modify by hand: regenerate with",
+        f"#     {command}",
+        "# " + "-" * 77,
+        f'"""Equations of motion, gaps and energy of the scene {model.name!r} (generated).',
+        "",
+        "Coordinates q and rates qd: " + ", ".join(s.name for s in model.q) + ".",
+        '"""',
+        "",
+        "import math",
+        "",
+        f'MODEL_HASH = "{_model_hash(model)}"',
+        f'NAME = "{model.name}"',
+        f"N_DOF = {len(model.q)}",
+        f"N_PARAM = {len(model.p)}",
+        f"N_CONTACT = {model.phi.shape[0]}",
+        f"N_WALL_CONTACT = {model.n_wall_contacts}",
+        f"PRESCRIBED = {model.box_motion is not None}",
+        f"DOF_NAMES = {tuple(s.name for s in model.q)!r}",
+        f"PARAM_NAMES = {tuple(s.name for s in model.p)!r}",
+        f"CONSTRAINT_NAMES = {tuple(model.constraint_names)!r}",
+        f"E_SLOT = {[s.name for s in model.p].index('e')}",
+        f"E_GROUND_SLOT = {[s.name for s in model.p].index('e_ground')}",
+        f"FUNCTIONS = {tuple(fn.name for fn in fs)!r}",
+    ]
+    return "\n".join(header) + "\n" + "".join("\n\n" + body for body in bodies)
+
+
+def _model_hash(model: Model) -> str:
+    from .version import model_hash
+
+    return model_hash(model.structure)
+
+
+def _function(fn: Function, outs, replacements, position, inputs, printer) -> str:
+    # Intermediate terms this function needs, transitively, in cse order.
+    needed: set[sp.Symbol] = set()
+    stack = [s for e in outs for s in e.free_symbols if s in position]
+    while stack:
+        sym = stack.pop()
+        if sym not in needed:
+            needed.add(sym)
+            stack.extend(s for s in replacements[position[sym]][1].free_symbols if s in position)
+    temps = [(sym, rhs) for sym, rhs in replacements if sym in needed]
+    used = set().union(*(e.free_symbols for e in outs), *(rhs.free_symbols for _, rhs in temps))
+
+    args = [a for a in _ARG_ORDER if a in fn.args] + (["out"] if fn.shape else [])
+    lines = [f"def {fn.name}({', '.join(args)}):", f'    """{fn.doc}"""', "    # Unpack inputs"]
+    for arg in fn.args:
+        for sym, (local, slot) in inputs[arg].items():
+            if sym in used and slot:
+                lines.append(f"    {local} = {slot}")
+    lines.append(f"    # Intermediate terms ({len(temps)})")
+    lines += [f"    {printer.doprint(sym)} = {printer.doprint(rhs)}" for sym, rhs in temps]
+    lines.append("    # Output terms")
+    if fn.shape is None:
+        lines.append(f"    result = {_number(printer, outs[0])}")
+    else:
+        cols = fn.shape[1] if len(fn.shape) == 2 else None
+        for i, e in enumerate(outs):
+            target = f"out[{i // cols}, {i % cols}]" if cols else f"out[{i}]"
+            lines.append(f"    {target} = {_number(printer, e)}")
+    ops = sum(sp.count_ops(rhs) for _, rhs in temps) + sum(sp.count_ops(e) for e in outs)
+    lines.append(f"    # Total ops: {ops}")
+    lines.append("    return result" if fn.shape is None else "    return")
+    return "\n".join(lines) + "\n"
+
+
+def _number(printer: KernelPrinter, e: sp.Expr) -> str:
+    text = printer.doprint(e)
+    # outputs are floats: an exact integer or zero prints as a float literal
+    return f"{text}.0" if e.is_Integer else text

@@ -1,0 +1,213 @@
+"""Stage 1: derive the symbolic model of a scene.
+
+From a checked :class:`jackbox.scene.Scene` this builds, with sympy:
+
+* the world-from-body SE(2) transforms ``g_wb`` (box) and ``g_wj`` (jack);
+* the kinetic energy from the body twists, ``T = 1/2 V^T I V`` with
+  ``V = (g^{-1} dg/dt)^vee`` and ``I = diag(m, m, J)``, and the potential
+  ``V = g (m_box y_box + m_jack y_jack) + [potential]``;
+* the Euler-Lagrange equations
+
+  .. math::
+
+      \\frac{d}{dt}\\frac{\\partial L}{\\partial \\dot q} - \\frac{\\partial L}{\\partial q} = Q
+      \\quad\\Longrightarrow\\quad M(q)\\,\\ddot q = f(t, q, \\dot q),
+
+  with ``M = d^2 L / dqd^2`` and ``f = Q + dL/dq - (d^2 L / dqd dq) qd - d^2 L / dqd dt``;
+* the gap vector ``phi(t, q)`` (jack points against the inner walls in the box
+  frame, ``phi = L - n . (g_wb^{-1} g_wj v)``; box corners against the ground),
+  its Jacobian ``phi_q`` and, for a prescribed box, ``phi_t``;
+* the energy ``T + V`` of both bodies.
+
+Masses, sizes, inertias, g, restitutions and ``[params]`` stay symbols (the
+parameter array); only the structure of the scene is compiled in. For a
+prescribed box the box coordinates are the motion formulas, functions of t.
+"""
+
+from __future__ import annotations
+
+import ast
+from dataclasses import dataclass
+
+import sympy as sp
+
+from jackbox import expr as _expr
+from jackbox.scene import BOX_COORDS, CORNER_SIGNS, COORDS, RATES, WALL_NORMALS, Scene
+
+_FUNCTIONS = {
+    "sin": sp.sin, "cos": sp.cos, "tan": sp.tan, "asin": sp.asin, "acos": sp.acos,
+    "atan": sp.atan, "atan2": sp.atan2, "sinh": sp.sinh, "cosh": sp.cosh, "tanh": sp.tanh,
+    "exp": sp.exp, "log": sp.log, "sqrt": sp.sqrt, "abs": sp.Abs,
+}
+
+
+class CodegenError(Exception):
+    """The compiler met a model it cannot emit (a bug or an unsupported structure)."""
+
+
+@dataclass
+class Model:
+    """The symbolic model of one scene: inputs (symbols) and outputs (expressions)."""
+
+    name: str
+    structure: dict
+    t: sp.Symbol
+    q: list[sp.Symbol]            #: the integrated coordinates (3 or 6)
+    qd: list[sp.Symbol]
+    p: list[sp.Symbol]            #: parameter slots, in array order
+    M: sp.Matrix                  #: (n, n) mass matrix
+    f: sp.Matrix                  #: (n,) forcing: Q + dL/dq - ...
+    phi: sp.Matrix                #: (C,) gaps
+    phi_q: sp.Matrix              #: (C, n)
+    phi_t: sp.Matrix | None       #: (C,) explicit time derivative (prescribed box only)
+    energy: sp.Expr
+    box_motion: sp.Matrix | None  #: (6,) pose and rates of a prescribed box
+    constraint_names: tuple[str, ...]
+    n_wall_contacts: int
+
+    @property
+    def mass_is_constant_diagonal(self) -> bool:
+        n = self.M.shape[0]
+        off = all(self.M[i, j] == 0 for i in range(n) for j in range(n) if i != j)
+        const = not (self.M.free_symbols & set(self.q) | self.M.free_symbols & set(self.qd)
+                     or self.t in self.M.free_symbols)
+        return off and const
+
+
+def se2(x, y, theta) -> sp.Matrix:
+    """World-from-body homogeneous transform of a planar rigid body."""
+    c, s = sp.cos(theta), sp.sin(theta)
+    return sp.Matrix([[c, -s, x], [s, c, y], [0, 0, 1]])
+
+
+def se2_inverse(g: sp.Matrix) -> sp.Matrix:
+    R, p = g[:2, :2], g[:2, 2]
+    Rt = R.T
+    top = Rt.row_join(-Rt * p)
+    return top.col_join(sp.Matrix([[0, 0, 1]]))
+
+
+def body_twist(g: sp.Matrix, gdot: sp.Matrix) -> sp.Matrix:
+    """``(g^{-1} dg/dt)^vee = (v_x, v_y, omega)`` in the body frame."""
+    xi = sp.simplify(se2_inverse(g) * gdot)
+    return sp.Matrix([xi[0, 2], xi[1, 2], xi[1, 0]])
+
+
+def frame_inertia(m, L, w):
+    """Polar inertia of the square frame from its four wall segments.
+
+    Top and bottom walls: ``2(L+w)`` by ``w`` at distance ``L + w/2``; left and
+    right: ``w`` by ``2L`` at the same distance. Mass is shared by area; each
+    segment contributes ``m_i (b^2 + h^2) / 12 + m_i d^2`` (parallel axis).
+    """
+    so, si, d = 2 * (L + w), 2 * L, L + w / 2
+    area = so**2 - si**2
+    segments = [(so, w), (so, w), (w, si), (w, si)]   # (width, height), all at distance d
+    total = 0
+    for b, h in segments:
+        m_i = m * b * h / area
+        total += m_i * (b**2 + h**2) / 12 + m_i * d**2
+    return sp.simplify(total)
+
+
+def to_sympy(text: str, symbols: dict[str, sp.Expr]) -> sp.Expr:
+    """Turn a checked scene formula into sympy, walking its syntax tree (no eval)."""
+    tree = _expr.parse(text, set(symbols)).tree
+
+    def walk(node):
+        if isinstance(node, ast.Constant):
+            value = node.value
+            return sp.Integer(value) if isinstance(value, int) else sp.Float(value)
+        if isinstance(node, ast.Name):
+            return sp.pi if node.id == "pi" else symbols[node.id]
+        if isinstance(node, ast.UnaryOp):
+            value = walk(node.operand)
+            return -value if isinstance(node.op, ast.USub) else value
+        if isinstance(node, ast.BinOp):
+            a, b = walk(node.left), walk(node.right)
+            return {ast.Add: lambda: a + b, ast.Sub: lambda: a - b, ast.Mult: lambda: a * b,
+                    ast.Div: lambda: a / b, ast.Pow: lambda: a**b}[type(node.op)]()
+        return _FUNCTIONS[node.func.id](*(walk(arg) for arg in node.args))
+
+    return walk(tree)
+
+
+def derive(scene: Scene) -> Model:
+    """The symbolic model of `scene` (see the module docstring)."""
+    t = sp.Symbol("t", real=True)
+    p = [sp.Symbol(name, real=True) for name in scene.param_names]
+    P = dict(zip(scene.param_names, p))
+    coords = {name: sp.Symbol(name, real=True) for name in COORDS}
+    rates = {name: sp.Symbol(name, real=True) for name in RATES}
+    q = [coords[name] for name in scene.dof_names]
+    qd = [rates[f"{name}_dot"] for name in scene.dof_names]
+
+    # Constants every formula may name; inertias and masses are parameter slots.
+    base = {"t": t, "g": P["g"], "m_box": P["m_box"], "m_jack": P["m_jack"],
+            "J_box": P["J_box"], "J_jack": P["J_jack"], "L": P["L"]}
+    base |= {name: P[name] for name in scene.user_params}
+
+    # Box coordinates: symbols (free) or the motion formulas (prescribed).
+    box_pose, box_rate = [coords[c] for c in BOX_COORDS], [rates[f"{c}_dot"] for c in BOX_COORDS]
+    if scene.prescribed:
+        box_pose = [to_sympy(text, base) for text in scene.motion]
+        box_rate = [sp.diff(expr, t) for expr in box_pose]
+    jack_pose = [coords[c] for c in COORDS[3:]]
+    jack_rate = [rates[f"{c}_dot"] for c in COORDS[3:]]
+    state = dict(zip(COORDS, box_pose + jack_pose)) | dict(zip(RATES, box_rate + jack_rate))
+    names = base | state
+
+    # Kinetic energy from the body twists; dg/dt by the chain rule on the pose.
+    def kinetic(pose, rate, m, J, given_in_time):
+        g = se2(*pose)
+        if given_in_time:          # a prescribed pose: a function of t
+            gdot = sp.diff(g, t)
+        else:                      # coordinates: chain rule with their rates
+            gdot = sum((sp.diff(g, c) * r for c, r in zip(pose, rate)), sp.zeros(3, 3))
+        V = body_twist(g, gdot)
+        return sp.Rational(1, 2) * (V.T * sp.diag(m, m, J) * V)[0, 0], g
+
+    T_box, g_wb = kinetic(box_pose, box_rate, P["m_box"], P["J_box"], scene.prescribed)
+    T_jack, g_wj = kinetic(jack_pose, jack_rate, P["m_jack"], P["J_jack"], False)
+    V_grav = P["g"] * (P["m_box"] * box_pose[1] + P["m_jack"] * jack_pose[1])
+    V_extra = sum((to_sympy(text, names) for _, text in sorted(scene.potential.items())), sp.Integer(0))
+    T = sp.expand(sp.simplify(T_box + T_jack))
+    V = V_grav + V_extra
+    Lag = T - V
+
+    n = len(q)
+    dL_dqd = [sp.diff(Lag, v) for v in qd]
+    M = sp.Matrix(n, n, lambda i, j: sp.simplify(sp.diff(dL_dqd[i], qd[j])))
+    Q = [to_sympy(scene.forces[c], names) if c in scene.forces else sp.Integer(0) for c in scene.dof_names]
+    f = sp.Matrix([
+        Q[i] + sp.diff(Lag, q[i])
+        - sum(sp.diff(dL_dqd[i], q[j]) * qd[j] for j in range(n))
+        - sp.diff(dL_dqd[i], t)
+        for i in range(n)
+    ])
+
+    # Gaps: jack points in the box frame against the inner walls, then the ground.
+    g_bj = se2_inverse(g_wb) * g_wj
+    if scene.shape == "polygon":
+        points = [(P[f"jack_x{i}"], P[f"jack_y{i}"]) for i in range(len(scene.points))]
+    else:
+        a = P["a_jack"]
+        signs = [(1, 0), (0, 1), (-1, 0), (0, -1)] if scene.shape == "cross" else CORNER_SIGNS
+        points = [(int(sx) * a, int(sy) * a) for sx, sy in signs]
+    local = [g_bj * sp.Matrix([x, y, 1]) for x, y in points]
+    rows = [P["L"] - (int(nx) * pt[0] + int(ny) * pt[1]) for nx, ny in WALL_NORMALS for pt in local]
+    n_wall = len(rows)
+    if scene.has_ground_contacts:
+        h = P["L"] + P["w_box"]
+        for sx, sy in CORNER_SIGNS:
+            rows.append((g_wb * sp.Matrix([int(sx) * h, int(sy) * h, 1]))[1])
+    phi = sp.Matrix(rows)
+    phi_q = phi.jacobian(q)
+    phi_t = phi.diff(t) if scene.prescribed else None
+    box_motion = sp.Matrix(box_pose + box_rate) if scene.prescribed else None
+
+    return Model(
+        name=scene.name, structure=scene.structure(), t=t, q=q, qd=qd, p=p,
+        M=M, f=f, phi=phi, phi_q=phi_q, phi_t=phi_t, energy=T + V, box_motion=box_motion,
+        constraint_names=scene.constraint_names, n_wall_contacts=n_wall,
+    )

@@ -1,0 +1,33 @@
+"""Who wrote a generated file, and from which model: the generator id and the model hash.
+
+The model hash covers the scene's structure (what is compiled in) and a digest
+of the compiler's own source, so a change to either regenerates the module. It
+is computed without sympy, so the runtime can tell a current module from a
+stale one cheaply.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+VERSION = "0.1.0"
+
+
+def _source_digest() -> str:
+    digest = hashlib.sha256()
+    for path in sorted(Path(__file__).parent.glob("*.py")):
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:12]
+
+
+#: Generator id written into every header: version and a digest of codegen/*.py.
+GENERATOR = f"jackbox-codegen {VERSION} (source {_source_digest()})"
+
+
+def model_hash(structure: dict) -> str:
+    """16 hex digits identifying a model: its structure plus the generator id."""
+    text = json.dumps({"generator": GENERATOR, "structure": structure}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]

@@ -1,0 +1,18 @@
+"""Errors a user can cause and fix: each carries one message that says what and where."""
+
+
+class JackboxError(Exception):
+    """Base of the errors that the CLI reports as one line, without a traceback."""
+
+
+class SceneError(JackboxError):
+    """A scene that cannot be simulated: names the file, the key and the problem."""
+
+    def __init__(self, source: str, key: str, problem: str):
+        self.source, self.key, self.problem = source, key, problem
+        where = f"{source}: {key}" if key else source
+        super().__init__(f"{where}: {problem}")
+
+
+class SimulationError(JackboxError):
+    """A run that cannot go on (non-finite state, bad arguments)."""

@@ -1,0 +1,161 @@
+"""Find (or build) the generated model of a scene and assemble its compiled kernel.
+
+Two content-addressed steps keep compiled code from ever going stale:
+
+1. The *model module*: the committed ``generated/<name>.py`` of a built-in
+   scene when its recorded model hash is the scene's, otherwise
+   ``<cache>/models/<name>_<hash>.py``, generated on first use. The hash
+   covers the scene's structure and the compiler's source.
+2. The *kernel module*: ``<cache>/kernels/<name>_<key>.py``, the text of the
+   model module, a binding section and the text of :mod:`jackbox.kernel`, where
+   ``key`` hashes all of that text and Numba's version. Numba caches its machine
+   code beside that file (``cache=True``); a changed model or kernel gives a new
+   file, so old machine code is never served for new source.
+
+The cache folder is ``$JACKBOX_CACHE_DIR``, else ``$XDG_CACHE_HOME/jackbox``,
+else ``~/.cache/jackbox``. Only building a model needs sympy.
+"""
+
+from __future__ import annotations
+
+import ast
+import hashlib
+import importlib.util
+import os
+import sys
+import time
+from pathlib import Path
+from types import ModuleType
+
+import numba
+
+from codegen.version import model_hash
+
+from .fileio import write_atomic
+from .scene import Scene
+
+KERNEL_SOURCE = Path(__file__).with_name("kernel.py")
+GENERATED_DIR = Path(__file__).resolve().parent.parent / "generated"
+#: functions a model may lack; the kernel only calls them when the model has them
+OPTIONAL = {
+    "phi_t": "def phi_t(t, q, p, out):\n    pass\n",
+    "box_motion": "def box_motion(t, p, out):\n    pass\n",
+}
+_loaded: dict[str, ModuleType] = {}
+
+
+def cache_dir() -> Path:
+    if os.environ.get("JACKBOX_CACHE_DIR"):
+        return Path(os.environ["JACKBOX_CACHE_DIR"]).expanduser()
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "jackbox"
+
+
+def recorded_hash(path: Path) -> str | None:
+    """The model hash written in a generated module's constants, if any."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            for _, line in zip(range(40), fh):
+                if line.startswith("MODEL_HASH = "):
+                    return line.split('"')[1]
+    except OSError:
+        return None
+    return None
+
+
+def model_path(scene: Scene) -> Path:
+    """Where the current generated module of `scene` is, or will be written."""
+    digest = model_hash(scene.structure())
+    if scene.builtin:
+        committed = GENERATED_DIR / f"{scene.name}.py"
+        if recorded_hash(committed) == digest:
+            return committed
+    return cache_dir() / "models" / f"{_ident(scene.name)}_{digest}.py"
+
+
+def ensure_model(scene: Scene, log=None) -> Path:
+    """The generated module of `scene`, generating it first if it is missing or stale."""
+    path = model_path(scene)
+    if recorded_hash(path) != model_hash(scene.structure()):
+        from codegen.driver import build   # sympy is only needed here
+
+        result = build(scene, path)
+        if log:
+            log(f"generated {path} ({sum(result.seconds.values()):.2f} s)")
+    return path
+
+
+def kernel_source(model_text: str, kernel_text: str | None = None) -> str:
+    """Text of the kernel module: the model, a binding section, then the kernel."""
+    kernel_text = KERNEL_SOURCE.read_text() if kernel_text is None else kernel_text
+    present = _functions_of(model_text)
+    absent = [name for name in OPTIONAL if name not in present]
+    stubs = "".join("\n\n" + OPTIONAL[name] for name in absent)
+    binding = (
+        "\n\n# " + "-" * 77 + "\n"
+        "# Binding (jackbox.loader): the model's functions compiled by Numba, in this file,\n"
+        "# so the kernel below calls them as globals and caches with them.\n"
+        "# " + "-" * 77 + "\n"
+        "from numba import njit as _njit\n"
+        + stubs
+        + "\n\n"
+        + "".join(f"{name} = _njit(cache=True)({name})\n" for name in (*present, *absent))
+        + "\n# " + "-" * 77 + "\n# Kernel (jackbox/kernel.py)\n# " + "-" * 77 + "\n"
+    )
+    return model_text + binding + kernel_text
+
+
+def load_kernel(model_file: Path, kernel_text: str | None = None) -> ModuleType:
+    """Import (assembling on first use) the kernel module for a generated model."""
+    text = kernel_source(model_file.read_text(), kernel_text)
+    key = hashlib.sha256((numba.__version__ + "\0" + text).encode()).hexdigest()[:16]
+    if key in _loaded:
+        return _loaded[key]
+    stem = model_file.stem.split("_")[0] if model_file.parent.name == "models" else model_file.stem
+    path = cache_dir() / "kernels" / f"{_ident(stem)}_{key}.py"
+    if not path.exists() or path.read_text() != text:
+        write_atomic(path, text)
+    name = f"jackbox_kernel_{_ident(stem)}_{key}"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    _loaded[key] = module
+    return module
+
+
+def kernel_for(scene: Scene, log=None) -> ModuleType:
+    """The kernel module of `scene` (model generated if needed)."""
+    return load_kernel(ensure_model(scene, log))
+
+
+def compile_kernel(module: ModuleType, n_rec: int = 2) -> dict:
+    """Make sure the kernel's machine code is ready: compiled now or loaded from cache.
+
+    Returns ``{"seconds": ..., "cache": "hit" | "miss" | "disabled"}``.
+    """
+    import numpy as np
+
+    from . import kernel as _k  # noqa: F401  (status constants only)
+
+    t0 = time.perf_counter()
+    if numba.config.DISABLE_JIT:
+        return {"seconds": 0.0, "cache": "disabled"}
+    n = module.N_DOF
+    p = np.zeros(module.N_PARAM)
+    module.integrate(np.zeros(n), np.zeros(n), p, 0.0, 1.0, 0, 0, 0, 1,
+                     np.zeros(n_rec), np.zeros((n_rec, 6)), np.zeros((n_rec, 6)), np.zeros(n_rec), 0,
+                     np.zeros(module.N_CONTACT + 1), np.zeros(module.N_CONTACT + 1, np.int64), 0)
+    hits = sum(module.integrate.stats.cache_hits.values())
+    return {"seconds": time.perf_counter() - t0, "cache": "hit" if hits else "miss"}
+
+
+def _functions_of(model_text: str) -> tuple[str, ...]:
+    for line in model_text.splitlines():
+        if line.startswith("FUNCTIONS = "):
+            return tuple(ast.literal_eval(line.split("=", 1)[1].strip()))
+    raise ValueError("not a generated model module: no FUNCTIONS line")
+
+
+def _ident(name: str) -> str:
+    return "".join(ch if ch.isalnum() else "_" for ch in name)

@@ -1,0 +1,521 @@
+"""Scene files: read, check and describe a simulation (the static half of the pipeline).
+
+A scene is one TOML file with the schema of ``SCENES.md`` (documented in
+``docs/scenes.md``). :func:`load_scene` reads a built-in scene by name or a file by
+path, applies ``--set`` style overrides, and checks everything before anything
+runs: every refusal is a :class:`~jackbox.errors.SceneError` naming the file, the
+key and the problem.
+
+The result, :class:`Scene`, splits what a scene says into
+
+* its *structure* (jack shape and point count, free or prescribed box, ground,
+  formulas of forces, potential and motion, the names of the parameters): what
+  the compiler compiles in, summarised by :meth:`Scene.structure`;
+* its *parameters* (masses, sizes, inertias, g, restitutions, ``[params]``): one
+  float array, :attr:`Scene.param_values`, that the generated code reads at run
+  time, so changing a value never regenerates or recompiles anything;
+* its start state and run settings.
+
+This module never imports sympy: checking a scene and running a compiled one is
+cheap.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import expr as _expr
+from .errors import SceneError
+
+COORDS = ("x_box", "y_box", "theta_box", "x_jack", "y_jack", "theta_jack")
+RATES = tuple(f"{c}_dot" for c in COORDS)
+BOX_COORDS, JACK_COORDS = COORDS[:3], COORDS[3:]
+WALLS = ("right", "top", "left", "bottom")
+#: outward normals of the inner walls, in the box frame
+WALL_NORMALS = ((1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0))
+#: the box's outer corners (+,+), (-,+), (-,-), (+,-), as multiples of L + w
+CORNER_SIGNS = ((1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0))
+JACK_SHAPES = ("cross", "square", "polygon")
+
+#: Symbols every formula may use besides ``t``, ``pi``, ``[params]`` and the state.
+BASE_SYMBOLS = ("g", "m_box", "m_jack", "J_box", "J_jack", "L")
+#: Parameter slots of every model, in array order; ``[params]`` follow.
+BASE_PARAMS = ("m_box", "J_box", "L", "w_box", "m_jack", "J_jack", "g", "e", "e_ground")
+RESERVED = frozenset(
+    {"t", "pi", "a_jack", *BASE_PARAMS, *COORDS, *RATES, *_expr.FUNCTIONS}
+)
+
+#: Defaults for optional keys; everything else is required.
+DEFAULTS: dict[str, dict[str, Any]] = {
+    "box": {"motion": "free", "x": "0", "y": "0", "theta": "0"},
+    "world": {"gravity": 9.81, "ground": False},
+    "impact": {"restitution": 1.0},
+    "initial": {"qd": [0.0] * 6},
+    "run": {"t_end": 10.0, "dt": 1e-3},
+}
+SCHEMA: dict[str, tuple[str, ...]] = {
+    "": ("name", "description", "params", "box", "jack", "world", "potential", "forces",
+         "impact", "initial", "run"),
+    "box": ("inner_half_width", "wall_thickness", "mass", "inertia", "motion", "x", "y", "theta"),
+    "jack": ("shape", "half_size", "mass", "inertia", "vertices"),
+    "world": ("gravity", "ground"),
+    "impact": ("restitution", "ground_restitution"),
+    "initial": ("q", "qd"),
+    "run": ("t_end", "dt"),
+}
+#: Sections whose keys are the user's own names.
+FREE_SECTIONS = ("params", "potential", "forces")
+NAME_RE = re.compile(r"^[a-z0-9_-]+$")
+IDENT_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+def builtin_scenes() -> dict[str, Path]:
+    """Names and paths of the scenes shipped with jackbox."""
+    folder = resources.files("jackbox.scenes")
+    return {Path(p.name).stem: Path(str(p)) for p in sorted(folder.iterdir(), key=lambda p: p.name)
+            if p.name.endswith(".toml")}
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A checked scene. Build one with :func:`load_scene`."""
+
+    name: str
+    description: str
+    source: str                     #: where it came from: a path or ``builtin:<name>``
+    text: str                       #: the scene file's text (stored in every .npz)
+    builtin: bool
+    raw: dict = field(repr=False)   #: the TOML tables after overrides, for re-checking
+
+    prescribed: bool                #: box moved by ``motion`` formulas instead of DOFs
+    motion: tuple[str, str, str]    #: x, y, theta formulas of a prescribed box
+    shape: str
+    points: np.ndarray              #: (P, 2) the jack's contact points in its frame
+    ground: bool
+    potential: dict[str, str]
+    forces: dict[str, str]          #: non-zero generalized forces only
+    user_params: dict[str, float]
+    param_names: tuple[str, ...]
+    param_values: np.ndarray
+    q0: np.ndarray                  #: (6,) start coordinates
+    qd0: np.ndarray                 #: (6,) start rates
+    t_end: float
+    dt: float
+
+    @property
+    def dof_names(self) -> tuple[str, ...]:
+        """The coordinates the kernel integrates (3 for a prescribed box, else 6)."""
+        return JACK_COORDS if self.prescribed else COORDS
+
+    @property
+    def constraint_names(self) -> tuple[str, ...]:
+        names = [f"{wall}:{i}" for wall in WALLS for i in range(len(self.points))]
+        if self.has_ground_contacts:
+            names += [f"ground:{i}" for i in range(4)]
+        return tuple(names)
+
+    @property
+    def has_ground_contacts(self) -> bool:
+        # a prescribed box is held by its motion whatever the ground does
+        return self.ground and not self.prescribed
+
+    def params(self) -> dict[str, float]:
+        return dict(zip(self.param_names, self.param_values.tolist()))
+
+    def structure(self) -> dict:
+        """What the compiler compiles in: equal structures give equal generated code."""
+        return {
+            "dofs": list(self.dof_names),
+            "motion": list(self.motion) if self.prescribed else None,
+            "shape": self.shape,
+            "n_points": len(self.points),
+            "ground": self.has_ground_contacts,
+            "potential": sorted(self.potential.items()),
+            "forces": sorted(self.forces.items()),
+            "params": list(self.param_names),
+        }
+
+    def with_overrides(self, overrides: dict[str, Any]) -> "Scene":
+        """A copy with ``name=value`` settings applied (see :func:`apply_overrides`)."""
+        raw = apply_overrides(self.raw, overrides, self.source)
+        return _build(raw, self.source, self.text, self.builtin)
+
+
+def load_scene(scene: "str | Path | Scene", overrides: dict[str, Any] | None = None) -> Scene:
+    """Read a scene: a built-in name (``"shaken"``), a path to a ``.toml``, or a Scene.
+
+    ``overrides`` maps ``name`` to a value, as ``jackbox run --set name=value``:
+    a ``[params]`` name, a dotted key (``impact.restitution``) or a key that is
+    unique in the schema (``restitution``, ``gravity``, ``dt`` ...).
+    """
+    if isinstance(scene, Scene):
+        return scene.with_overrides(overrides) if overrides else scene
+    builtins = builtin_scenes()
+    path = Path(scene)
+    if str(scene) in builtins and not path.exists():
+        path, source, builtin = builtins[str(scene)], f"builtin:{scene}", True
+    elif path.exists() or str(scene).endswith(".toml"):
+        source, builtin = str(scene), False
+        if not path.is_file():
+            raise SceneError(source, "", "no such scene file")
+    else:
+        raise SceneError(str(scene), "", f"no such scene file, nor a built-in scene "
+                         f"(built-in: {', '.join(builtins)})")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SceneError(source, "", f"cannot be read ({exc})") from None
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(source, "", f"not valid TOML: {exc}") from None
+    if overrides:
+        raw = apply_overrides(raw, overrides, source)
+    return _build(raw, source, text, builtin)
+
+
+def apply_overrides(raw: dict, overrides: dict[str, Any], source: str) -> dict:
+    """Return a copy of the TOML tables with ``name=value`` settings applied.
+
+    String values are read as TOML values when they parse as one (``0.6``,
+    ``true``, ``[0, 1]``), else kept as strings (formulas).
+    """
+    raw = {k: dict(v) if isinstance(v, dict) else v for k, v in raw.items()}
+    for name, value in overrides.items():
+        if isinstance(value, str):
+            try:
+                value = tomllib.loads(f"v = {value}")["v"]
+            except tomllib.TOMLDecodeError:
+                pass
+        section, key = _resolve_override(raw, name, source)
+        if section:
+            raw.setdefault(section, {})
+            if not isinstance(raw[section], dict):
+                raise SceneError(source, section, "must be a table")
+            raw[section][key] = value
+        else:
+            raw[key] = value
+    return raw
+
+
+def _resolve_override(raw: dict, name: str, source: str) -> tuple[str, str]:
+    if "." in name:
+        section, _, key = name.partition(".")
+        if section not in SCHEMA and section not in FREE_SECTIONS:
+            raise SceneError(source, f"--set {name}", f"unknown section {section!r}")
+        return section, key
+    if name in raw.get("params", {}):
+        return "params", name
+    owners = [s for s, keys in SCHEMA.items() if s and name in keys]
+    if name in ("name", "description"):
+        return "", name
+    if len(owners) == 1:
+        return owners[0], name
+    raise SceneError(source, f"--set {name}",
+                     "not a [params] name nor a scene key (use section.key, e.g. impact.restitution)")
+
+
+# --- checking -------------------------------------------------------------------------
+
+class _Checker:
+    """Reads typed values out of the TOML tables, raising SceneError on the first problem."""
+
+    def __init__(self, raw: dict, source: str):
+        self.raw, self.source = raw, source
+
+    def fail(self, key: str, problem: str):
+        raise SceneError(self.source, key, problem)
+
+    def table(self, section: str) -> dict:
+        value = self.raw.get(section, {})
+        if not isinstance(value, dict):
+            self.fail(section, f"must be a table [{section}], got {_kind(value)}")
+        return value
+
+    def get(self, section: str, key: str, required: bool = True):
+        table = self.table(section) if section else self.raw
+        if key in table:
+            return table[key]
+        if key in DEFAULTS.get(section, {}):
+            return DEFAULTS[section][key]
+        if required:
+            self.fail(_dotted(section, key), "is required")
+        return None
+
+    def number(self, section: str, key: str, *, positive=False, low=None, high=None,
+               required=True) -> float | None:
+        value = self.get(section, key, required)
+        if value is None:
+            return None
+        name = _dotted(section, key)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            self.fail(name, f"must be a number, got {_kind(value)}")
+        value = float(value)
+        if not math.isfinite(value):
+            self.fail(name, f"must be finite, got {value}")
+        if positive and value <= 0:
+            self.fail(name, f"must be > 0, got {value:g}")
+        if low is not None and not low <= value <= high:
+            self.fail(name, f"must be in [{low:g}, {high:g}], got {value:g}")
+        return value
+
+    def string(self, section: str, key: str, choices=None) -> str:
+        value = self.get(section, key)
+        name = _dotted(section, key)
+        if not isinstance(value, str):
+            self.fail(name, f"must be a string, got {_kind(value)}")
+        if choices and value not in choices:
+            self.fail(name, f"must be one of {', '.join(map(repr, choices))}, got {value!r}")
+        return value
+
+    def vector(self, section: str, key: str, n: int) -> np.ndarray:
+        value = self.get(section, key)
+        name = _dotted(section, key)
+        if not isinstance(value, list) or len(value) != n:
+            self.fail(name, f"must be a list of {n} numbers, got {_kind(value)}")
+        for i, item in enumerate(value):
+            if isinstance(item, bool) or not isinstance(item, (int, float)) or not math.isfinite(item):
+                self.fail(f"{name}[{i}]", f"must be a finite number, got {item!r}")
+        return np.array(value, dtype=float)
+
+    def formula(self, key: str, value, allowed) -> _expr.Expr:
+        try:
+            return _expr.parse(value, allowed)
+        except _expr.ExprError as exc:
+            self.fail(key, str(exc))
+
+
+def _dotted(section: str, key: str) -> str:
+    return f"{section}.{key}" if section else key
+
+
+def _kind(value) -> str:
+    if isinstance(value, bool):
+        return f"a boolean ({str(value).lower()})"
+    if isinstance(value, (int, float)):
+        return f"a number ({value})"
+    if isinstance(value, str):
+        return f"a string ({value!r})"
+    if isinstance(value, list):
+        return f"a list of {len(value)}"
+    if isinstance(value, dict):
+        return "a table"
+    return type(value).__name__
+
+
+def _build(raw: dict, source: str, text: str, builtin: bool) -> Scene:
+    c = _Checker(raw, source)
+    for key in raw:
+        if key not in SCHEMA[""]:
+            c.fail(key, f"unknown key (known: {', '.join(SCHEMA[''])})")
+    for section, keys in SCHEMA.items():
+        if section:
+            for key in c.table(section):
+                if key not in keys:
+                    c.fail(_dotted(section, key), f"unknown key (known in [{section}]: {', '.join(keys)})")
+
+    name = c.string("", "name")
+    if not NAME_RE.match(name):
+        c.fail("name", f"must match [a-z0-9_-]+, got {name!r}")
+    description = raw.get("description", "")
+    if not isinstance(description, str):
+        c.fail("description", f"must be a string, got {_kind(description)}")
+
+    user_params: dict[str, float] = {}
+    for key in c.table("params"):
+        if not IDENT_RE.match(key) or key in RESERVED:
+            c.fail(f"params.{key}", "is not a usable parameter name"
+                   + (" (reserved)" if key in RESERVED else " (use letters, digits, _)"))
+        user_params[key] = c.number("params", key)
+
+    L = c.number("box", "inner_half_width", positive=True)
+    w = c.number("box", "wall_thickness", positive=True)
+    m_box = c.number("box", "mass", positive=True)
+    J_box = c.number("box", "inertia", positive=True, required=False)
+    if J_box is None:
+        J_box = frame_inertia(m_box, L, w)
+    motion_kind = c.string("box", "motion", ("free", "prescribed"))
+    prescribed = motion_kind == "prescribed"
+
+    shape = c.string("jack", "shape", JACK_SHAPES)
+    m_jack = c.number("jack", "mass", positive=True)
+    jack = c.table("jack")
+    if shape == "polygon":
+        if "half_size" in jack:
+            c.fail("jack.half_size", "is not used by a polygon jack (give jack.vertices)")
+        points = _polygon(c)
+        J_default = polygon_inertia(m_jack, points)
+        a = None
+    else:
+        if "vertices" in jack:
+            c.fail("jack.vertices", f"is only for shape = 'polygon', not {shape!r}")
+        a = c.number("jack", "half_size", positive=True)
+        if shape == "cross":
+            points = a * np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+            J_default = m_jack * a * a
+        else:
+            points = a * np.array(CORNER_SIGNS)
+            J_default = 2.0 * m_jack * a * a / 3.0
+    J_jack = c.number("jack", "inertia", positive=True, required=False) or J_default
+
+    g = c.number("world", "gravity", low=0.0, high=math.inf)
+    ground = c.get("world", "ground")
+    if not isinstance(ground, bool):
+        c.fail("world.ground", f"must be true or false, got {_kind(ground)}")
+    e = c.number("impact", "restitution", low=0.0, high=1.0)
+    e_ground = c.number("impact", "ground_restitution", low=0.0, high=1.0, required=False)
+    e_ground = e if e_ground is None else e_ground
+
+    constants = set(BASE_SYMBOLS) | set(user_params) | {"t"}
+    state = set(COORDS) | set(RATES)
+    box_table = c.table("box")
+    motion = ("0", "0", "0")
+    if prescribed:
+        motion_formulas = []
+        for coord in ("x", "y", "theta"):
+            f = c.formula(f"box.{coord}", c.get("box", coord), constants | state)
+            used_state = sorted(f.names & state)
+            if used_state:
+                c.fail(f"box.{coord}", f"a prescribed motion may not use the state ({', '.join(used_state)}): "
+                       "it moves the box whatever the jack does")
+            motion_formulas.append(f.text)
+        motion = tuple(motion_formulas)
+    else:
+        for coord in ("x", "y", "theta"):
+            if coord in box_table:
+                c.fail(f"box.{coord}", "is only used with box.motion = 'prescribed'")
+
+    potential = {}
+    for key, value in c.table("potential").items():
+        f = c.formula(f"potential.{key}", value, constants | set(COORDS) | set(RATES))
+        rates = sorted(f.names & set(RATES))
+        if rates:
+            c.fail(f"potential.{key}", f"a potential depends on coordinates and t only, not on {', '.join(rates)}")
+        potential[key] = f.text
+    forces = {}
+    for key, value in c.table("forces").items():
+        if key not in COORDS:
+            c.fail(f"forces.{key}", f"unknown coordinate (known: {', '.join(COORDS)})")
+        if prescribed and key in BOX_COORDS:
+            c.fail(f"forces.{key}", "a prescribed box takes no forces: its motion is given")
+        f = c.formula(f"forces.{key}", value, constants | state)
+        if not (f.names or f.evaluate({}) != 0.0):
+            continue  # a zero force emits nothing
+        forces[key] = f.text
+
+    q0 = c.vector("initial", "q", 6)
+    qd0 = c.vector("initial", "qd", 6)
+    t_end = c.number("run", "t_end", positive=True)
+    dt = c.number("run", "dt", positive=True)
+    if dt > t_end:
+        c.fail("run.dt", f"is larger than run.t_end ({dt:g} > {t_end:g})")
+
+    param_names = list(BASE_PARAMS)
+    param_values = [m_box, J_box, L, w, m_jack, J_jack, g, e, e_ground]
+    if a is not None:
+        param_names.append("a_jack")
+        param_values.append(a)
+    else:
+        for i, (x, y) in enumerate(points):
+            param_names += [f"jack_x{i}", f"jack_y{i}"]
+            param_values += [float(x), float(y)]
+    param_names += list(user_params)
+    param_values += list(user_params.values())
+
+    values = dict(zip(param_names, param_values)) | {"t": 0.0}
+    if prescribed:
+        for i, formula in enumerate(motion):
+            q0[i] = _expr.parse(formula, constants).evaluate(values)
+    _check_start(c, q0, points, L, w, ground and not prescribed)
+
+    return Scene(
+        name=name, description=description, source=source, text=text, builtin=builtin, raw=raw,
+        prescribed=prescribed, motion=motion, shape=shape, points=points, ground=bool(ground),
+        potential=potential, forces=forces, user_params=user_params,
+        param_names=tuple(param_names), param_values=np.array(param_values, dtype=float),
+        q0=q0, qd0=qd0, t_end=t_end, dt=dt,
+    )
+
+
+def _polygon(c: _Checker) -> np.ndarray:
+    value = c.get("jack", "vertices")
+    if (not isinstance(value, list) or len(value) < 3
+            or not all(isinstance(v, list) and len(v) == 2 for v in value)):
+        c.fail("jack.vertices", "must be a list of at least 3 [x, y] pairs")
+    for i, v in enumerate(value):
+        for x in v:
+            if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+                c.fail(f"jack.vertices[{i}]", f"must be two finite numbers, got {v!r}")
+    pts = np.array(value, dtype=float)
+    nxt = np.roll(pts, -1, axis=0)
+    cross = pts[:, 0] * nxt[:, 1] - nxt[:, 0] * pts[:, 1]
+    area = 0.5 * cross.sum()
+    size = np.abs(pts).max()
+    if area <= 0:
+        c.fail("jack.vertices", "the polygon is clockwise or degenerate (give the vertices counter-clockwise)")
+    edges = nxt - pts
+    turn = edges[:, 0] * np.roll(edges, -1, axis=0)[:, 1] - edges[:, 1] * np.roll(edges, -1, axis=0)[:, 0]
+    if np.any(turn <= 1e-12 * size * size):
+        bad = int(np.argmax(turn <= 1e-12 * size * size))
+        c.fail("jack.vertices", f"the polygon is not strictly convex (at vertex {(bad + 1) % len(pts)})")
+    centroid = ((pts + nxt) * cross[:, None]).sum(axis=0) / (6.0 * area)
+    if np.hypot(*centroid) > 1e-9 * size:
+        c.fail("jack.vertices", f"must be given about the polygon's centroid, which is at "
+               f"({centroid[0]:.6g}, {centroid[1]:.6g}); subtract it from every vertex")
+    return pts
+
+
+def frame_inertia(mass: float, L: float, w: float) -> float:
+    """Polar inertia of the uniform square frame: ``m (so^2 + si^2) / 6``.
+
+    The compiler derives the same value from the four wall segments
+    (:func:`codegen.model.frame_inertia`); a test checks that they agree.
+    """
+    so, si = 2.0 * (L + w), 2.0 * L
+    return mass * (so * so + si * si) / 6.0
+
+
+def polygon_inertia(mass: float, points: np.ndarray) -> float:
+    """Polar inertia about the centroid of a uniform convex polygon (CCW vertices)."""
+    x, y = points[:, 0], points[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cross = x * yn - xn * y
+    area = 0.5 * cross.sum()
+    second = (cross * (x * x + x * xn + xn * xn + y * y + y * yn + yn * yn)).sum() / 12.0
+    return float(mass * second / area)
+
+
+def contact_gaps(q: np.ndarray, points: np.ndarray, L: float, w: float, ground: bool) -> np.ndarray:
+    """Gap vector ``phi(q)`` in the order of :attr:`Scene.constraint_names`, in plain numpy.
+
+    Used to refuse penetrating start states without compiling anything; the
+    compiler derives the same rows symbolically and the tests compare them.
+    """
+    xb, yb, tb, xj, yj, tj = q
+    cj, sj, cb, sb = math.cos(tj), math.sin(tj), math.cos(tb), math.sin(tb)
+    world = np.column_stack([xj + cj * points[:, 0] - sj * points[:, 1],
+                             yj + sj * points[:, 0] + cj * points[:, 1]])
+    dx, dy = world[:, 0] - xb, world[:, 1] - yb
+    local = np.column_stack([cb * dx + sb * dy, -sb * dx + cb * dy])
+    rows = [L - (local @ np.array(n)) for n in WALL_NORMALS]
+    if ground:
+        h = L + w
+        rows.append(np.array([yb + sb * sx * h + cb * sy * h for sx, sy in CORNER_SIGNS]))
+    return np.concatenate(rows)
+
+
+def _check_start(c: _Checker, q0, points, L, w, ground) -> None:
+    gaps = contact_gaps(q0, points, L, w, ground)
+    tol = 1e-9 * L
+    worst = int(np.argmin(gaps))
+    if gaps[worst] < -tol:
+        names = [f"{wall}:{i}" for wall in WALLS for i in range(len(points))] + [f"ground:{i}" for i in range(4)]
+        c.fail("initial.q", f"the start state penetrates: contact {names[worst]!r} has gap {gaps[worst]:.6g} < 0")

@@ -1,0 +1,92 @@
+"""Trajectories: what a simulation returns, and its ``.npz`` file (SCENES.md, "Output").
+
+A :class:`Trajectory` is plain arrays: sample times, the 6 coordinates and
+rates (a prescribed box's columns filled from its motion), the energy, and the
+impact log (time and constraint index of every impulse). ``save`` writes the
+``.npz`` atomically; ``load`` checks that a file has every key it needs.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import JackboxError
+from .fileio import write_atomic
+from .scene import COORDS
+
+NPZ_KEYS = ("t", "q", "qd", "energy", "impact_t", "impact_constraint", "constraint_names", "scene", "meta")
+
+
+@dataclass
+class Trajectory:
+    """A simulated trajectory. Shapes: N samples, K impulses, C constraints."""
+
+    t: np.ndarray                   #: (N,) sample times
+    q: np.ndarray                   #: (N, 6) coordinates, columns in COORDS order
+    qd: np.ndarray                  #: (N, 6) rates
+    energy: np.ndarray              #: (N,) kinetic + potential energy of both bodies
+    impact_t: np.ndarray            #: (K,) time of every contact impulse, in order
+    impact_constraint: np.ndarray   #: (K,) index into constraint_names
+    constraint_names: tuple[str, ...]
+    scene: str = ""                 #: the scene file's text
+    meta: dict = field(default_factory=dict)
+
+    coords = COORDS
+
+    @property
+    def impacts(self) -> np.ndarray:
+        """Structured array of the impulses: fields ``t``, ``constraint``, ``name``."""
+        out = np.empty(len(self.impact_t), dtype=[("t", float), ("constraint", int), ("name", "U16")])
+        out["t"] = self.impact_t
+        out["constraint"] = self.impact_constraint
+        names = np.asarray(self.constraint_names, dtype="U16")
+        out["name"] = names[self.impact_constraint] if len(names) else ""
+        return out
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def __repr__(self) -> str:
+        name = self.meta.get("scene", "?")
+        return (f"<Trajectory {name}: {len(self.t)} samples over t = {self.t[0]:g}..{self.t[-1]:g} s, "
+                f"{len(self.impact_t)} impulses>")
+
+    def save(self, path: str | Path) -> Path:
+        """Write the trajectory as ``.npz`` (atomically: never a half-written file)."""
+        arrays = {
+            "t": self.t, "q": self.q, "qd": self.qd, "energy": self.energy,
+            "impact_t": self.impact_t, "impact_constraint": self.impact_constraint,
+            "constraint_names": np.asarray(self.constraint_names, dtype=str),
+            "scene": np.asarray(self.scene), "meta": np.asarray(json.dumps(self.meta, sort_keys=True)),
+        }
+        return write_atomic(path, lambda fh: np.savez_compressed(fh, **arrays))
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Trajectory":
+        """Read a ``.npz`` written by :meth:`save` (or by anything that follows SCENES.md)."""
+        try:
+            data = np.load(path, allow_pickle=False)
+        except FileNotFoundError:
+            raise JackboxError(f"{path}: no such file") from None
+        except (OSError, ValueError, zipfile.BadZipFile) as exc:
+            raise JackboxError(f"{path}: not a trajectory .npz ({exc})") from None
+        with data:
+            missing = [k for k in NPZ_KEYS if k not in data.files]
+            if missing:
+                raise JackboxError(f"{path}: not a jackbox trajectory, missing {', '.join(missing)}")
+            arrays = {k: data[k] for k in NPZ_KEYS}
+        try:
+            meta = json.loads(str(arrays["meta"]))
+        except json.JSONDecodeError as exc:
+            raise JackboxError(f"{path}: meta is not JSON ({exc})") from None
+        return cls(
+            t=arrays["t"], q=arrays["q"], qd=arrays["qd"], energy=arrays["energy"],
+            impact_t=arrays["impact_t"], impact_constraint=arrays["impact_constraint"].astype(np.int64),
+            constraint_names=tuple(str(s) for s in arrays["constraint_names"]),
+            scene=str(arrays["scene"]), meta=meta,
+        )
