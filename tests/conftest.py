@@ -1,0 +1,97 @@
+"""Shared scenes for the tests: the built-ins plus a few that reach other code paths."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import pytest
+
+import jackbox
+
+BUILTINS = ("shaken", "spring", "drop")
+
+#: A box shaken up and down by a hand (prescribed motion), a polygon jack inside.
+PRESCRIBED = """
+name = "hand"
+description = "prescribed box, hexagon jack"
+[params]
+amp = 0.3
+freq = 1.5
+[box]
+inner_half_width = 1.0
+wall_thickness = 0.1
+mass = 4.0
+motion = "prescribed"
+x = "0.1*sin(2*pi*t)"
+y = "amp*sin(2*pi*freq*t)"
+theta = "0.2*sin(pi*t)"
+[jack]
+shape = "polygon"
+mass = 0.7
+# point-symmetric, so its centroid is exactly the origin
+vertices = [[0.3, 0.0], [0.15, 0.2], [-0.15, 0.25], [-0.3, 0.0], [-0.15, -0.2], [0.15, -0.25]]
+[world]
+gravity = 9.81
+[potential]
+tether = "0.5*3.0*(x_jack - x_box)**2"
+[forces]
+theta_jack = "-0.05*theta_jack_dot"
+[impact]
+restitution = 0.8
+[initial]
+q = [0, 0, 0, 0.2, 0.1, 0.4]
+qd = [0, 0, 0, 1.0, 2.0, -3.0]
+[run]
+t_end = 2.0
+dt = 1e-3
+"""
+
+#: No gravity, no forces: total momentum is kept by every impact.
+FREE_FLOAT = """
+name = "float"
+[box]
+inner_half_width = 1.0
+wall_thickness = 0.2
+mass = 3.0
+[jack]
+shape = "square"
+half_size = 0.3
+mass = 1.0
+[world]
+gravity = 0.0
+[initial]
+q = [0, 0, 0.1, 0.2, -0.1, 0.5]
+qd = [0.3, -0.2, 0.4, 2.0, 1.5, 4.0]
+[run]
+t_end = 3.0
+dt = 1e-3
+"""
+
+
+def write_scene(folder: Path, text: str, name: str = "scene.toml") -> Path:
+    path = folder / name
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+@pytest.fixture(scope="session")
+def scene_dir(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("scenes")
+
+
+@pytest.fixture(scope="session")
+def prescribed_scene(scene_dir):
+    return jackbox.load_scene(write_scene(scene_dir, PRESCRIBED, "hand.toml"))
+
+
+@pytest.fixture(scope="session")
+def float_scene(scene_dir):
+    return jackbox.load_scene(write_scene(scene_dir, FREE_FLOAT, "float.toml"))
+
+
+@pytest.fixture(scope="session")
+def all_scenes(prescribed_scene, float_scene):
+    """Every built-in scene plus the ones above, by name."""
+    scenes = {name: jackbox.load_scene(name) for name in BUILTINS}
+    return scenes | {"hand": prescribed_scene, "float": float_scene}

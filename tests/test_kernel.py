@@ -1,0 +1,147 @@
+"""The fused kernel against the slow reference, and the invariants of its physics."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import jackbox
+from jackbox import api, reference
+
+from .conftest import write_scene
+
+#: Horizons short enough that chaos has not amplified round-off, long enough for impacts.
+HORIZONS = {"shaken": 1.5, "spring": 1.0, "drop": 1.0, "hand": 1.0, "float": 1.5}
+
+
+def assert_same_trajectory(got, want, atol_q, atol_qd):
+    """Compare sample by sample; fail at the first step that differs, naming it."""
+    assert got.t.shape == want.t.shape, (got.t.shape, want.t.shape)
+    np.testing.assert_array_equal(got.t, want.t)
+    for what, a, b, tol in (("q", got.q, want.q, atol_q), ("qd", got.qd, want.qd, atol_qd)):
+        err = np.abs(a - b).max(axis=1)
+        bad = np.flatnonzero(err > tol)
+        if len(bad):
+            i = bad[0]
+            col = int(np.argmax(np.abs(a[i] - b[i])))
+            pytest.fail(f"{what} differs first at sample {i} (t = {got.t[i]:.6g} s): "
+                        f"{jackbox.Trajectory.coords[col]} {what} = {a[i, col]!r} vs {b[i, col]!r} "
+                        f"(|diff| {err[i]:.3g} > {tol:g})")
+    np.testing.assert_array_equal(got.impact_constraint, want.impact_constraint)
+    np.testing.assert_allclose(got.impact_t, want.impact_t, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", list(HORIZONS))
+def test_kernel_matches_reference_step_by_step(name, all_scenes):
+    scene = all_scenes[name]
+    got = jackbox.simulate(scene, t_end=HORIZONS[name])
+    want = reference.simulate(scene, t_end=HORIZONS[name])
+    assert len(want.impact_t) >= 2, "the horizon should include impacts"
+    # Same float operations in another order (cse, LLVM): round-off of 1e-15 per
+    # step, amplified by a few impacts; 1e-9 m and 1e-8 m/s leave room for that
+    # and still catch any wrong term (those show up at 1e-4 or more).
+    assert_same_trajectory(got, want, atol_q=1e-9, atol_qd=1e-8)
+    np.testing.assert_allclose(got.energy, want.energy, rtol=1e-10, atol=1e-9)
+
+
+def test_kernel_matches_reference_through_many_simultaneous_impacts():
+    # drop with e = 0.6: the box ends up chattering on the ground (hundreds of
+    # impulses, often two corners at once), which also grows the impact log
+    got = jackbox.simulate("drop", t_end=2.1, params={"e": 0.6, "e_ground": 0.6})
+    want = reference.simulate("drop", t_end=2.1, params={"e": 0.6, "e_ground": 0.6})
+    assert len(got.impact_t) > 600
+    assert_same_trajectory(got, want, atol_q=1e-9, atol_qd=1e-8)
+
+
+def test_log_growth_and_chunking_do_not_change_the_result(monkeypatch):
+    whole = jackbox.simulate("drop", t_end=3.0, params={"e": 0.6, "e_ground": 0.6})
+    assert len(whole.impact_t) > 2048          # the log grew at least twice
+    monkeypatch.setattr(api, "CHUNK", 37)      # many kernel calls, resumed mid-run
+    pieces = jackbox.simulate("drop", t_end=3.0, params={"e": 0.6, "e_ground": 0.6})
+    for key in ("t", "q", "qd", "energy", "impact_t", "impact_constraint"):
+        np.testing.assert_array_equal(getattr(whole, key), getattr(pieces, key), err_msg=key)
+
+
+def test_record_every_keeps_every_kth_step_and_the_last():
+    full = jackbox.simulate("spring", t_end=0.1)
+    thin = jackbox.simulate("spring", t_end=0.1, record_every=7)
+    idx = list(range(0, 101, 7)) + [100]
+    np.testing.assert_array_equal(thin.t, full.t[idx])
+    np.testing.assert_array_equal(thin.q, full.q[idx])
+    np.testing.assert_array_equal(thin.energy, full.energy[idx])
+
+
+def test_elastic_unforced_scene_keeps_its_energy():
+    traj = jackbox.simulate("drop")   # e = 1, gravity only
+    assert len(traj.impact_t) > 20
+    # Between impacts the motion is a parabola, which RK4 integrates exactly, and
+    # an e = 1 impulse keeps kinetic energy: only round-off remains.
+    drift = np.abs(traj.energy - traj.energy[0]).max() / traj.energy[0]
+    assert drift < 1e-10, drift
+
+
+def test_inelastic_impacts_never_add_energy():
+    traj = jackbox.simulate("drop", params={"e": 0.6, "e_ground": 0.6})
+    # gravity is conservative, so energy can only change at an impact, and only down
+    rises = np.diff(traj.energy)
+    assert rises.max() < 1e-9 * traj.energy[0], rises.max()
+    assert traj.energy[-1] < 0.8 * traj.energy[0]
+
+
+def test_momentum_is_kept_with_no_outside_force(float_scene):
+    traj = jackbox.simulate(float_scene)
+    assert len(traj.impact_t) >= 5
+    p = float_scene.params()
+    mb, mj, Jb, Jj = p["m_box"], p["m_jack"], p["J_box"], p["J_jack"]
+    q, qd = traj.q, traj.qd
+    linear = mb * qd[:, :2] + mj * qd[:, 3:5]
+    angular = (mb * (q[:, 0] * qd[:, 1] - q[:, 1] * qd[:, 0]) + Jb * qd[:, 2]
+               + mj * (q[:, 3] * qd[:, 4] - q[:, 4] * qd[:, 3]) + Jj * qd[:, 5])
+    # an impulse and its reaction act at the same point: exact up to round-off
+    assert np.abs(linear - linear[0]).max() < 1e-12 * np.abs(linear[0]).max()
+    assert np.abs(angular - angular[0]).max() < 1e-11 * np.abs(angular[0])
+
+
+def test_params_change_values_without_regenerating(tmp_path):
+    by_set = jackbox.simulate(jackbox.load_scene("drop", {"restitution": "0.6"}), t_end=2.0)
+    by_params = jackbox.simulate("drop", t_end=2.0, params={"e": 0.6, "e_ground": 0.6})
+    np.testing.assert_array_equal(by_set.q, by_params.q)
+    assert by_set.meta["model_hash"] == by_params.meta["model_hash"] == \
+        jackbox.simulate("drop", t_end=0.01).meta["model_hash"]
+
+
+def test_unknown_param_and_bad_arguments_are_refused():
+    with pytest.raises(jackbox.SimulationError, match="unknown parameter 'gravity'"):
+        jackbox.simulate("drop", params={"gravity": 1.0})
+    with pytest.raises(jackbox.SimulationError, match="dt"):
+        jackbox.simulate("drop", dt=-1.0)
+    with pytest.raises(jackbox.SimulationError, match="record_every"):
+        jackbox.simulate("drop", record_every=0)
+
+
+def test_non_finite_state_stops_with_a_clear_error(tmp_path):
+    text = (jackbox.builtin_scenes()["drop"].read_text()
+            .replace("[impact]", '[forces]\nx_jack = "exp(1000*t)"\n\n[impact]'))
+    scene = jackbox.load_scene(write_scene(tmp_path, text))
+    with pytest.raises(jackbox.SimulationError, match=r"non-finite at step \d+ \(t = 0\.7"):
+        jackbox.simulate(scene, t_end=1.0)
+
+
+def test_kernel_runs_without_jit(tmp_path):
+    # NUMBA_DISABLE_JIT=1 runs the same kernel source as plain Python (for
+    # coverage and debuggers); it must give the compiled kernel's numbers.
+    code = ("import jackbox, json; t = jackbox.simulate('drop', t_end=0.6); "
+            "print(json.dumps([t.q[-1].tolist(), t.impact_t.tolist(), t.meta['kernel']['cache']]))")
+    env = os.environ | {"NUMBA_DISABLE_JIT": "1", "JACKBOX_CACHE_DIR": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    q_last, impact_t, cache = json.loads(out.stdout)
+    assert cache == "disabled"
+    jit = jackbox.simulate("drop", t_end=0.6)
+    assert len(impact_t) >= 3
+    np.testing.assert_allclose(q_last, jit.q[-1], rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(impact_t, jit.impact_t)
