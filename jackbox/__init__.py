@@ -15,12 +15,12 @@ right twin (sympy.lambdify and plain Python); it is imported on first use.
 
 __version__ = "0.1.0"
 
-from .errors import JackboxError, SceneError, SimulationError  # noqa: E402
+from .errors import JackboxError, NonFiniteStateError, SceneError, SimulationError  # noqa: E402
 from .scene import Scene, builtin_scenes, load_scene  # noqa: E402
 from .trajectory import Trajectory  # noqa: E402
 from .api import simulate  # noqa: E402
 
-__all__ = ["JackboxError", "Scene", "SceneError", "SimulationError", "Trajectory",
+__all__ = ["JackboxError", "NonFiniteStateError", "Scene", "SceneError", "SimulationError", "Trajectory",
            "builtin_scenes", "load_scene", "simulate", "reference"]
 
 

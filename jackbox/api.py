@@ -18,7 +18,7 @@ import numpy as np
 
 from . import __version__, loader
 from . import kernel as K
-from .errors import SimulationError
+from .errors import NonFiniteStateError, SimulationError
 from .scene import Scene, load_scene
 from .trajectory import Trajectory
 
@@ -125,7 +125,7 @@ def simulate(scene: Scene | str, t_end: float | None = None, dt: float | None = 
                 imp_t = np.concatenate([imp_t, np.empty_like(imp_t)])
                 imp_k = np.concatenate([imp_k, np.empty_like(imp_k)])
             elif status == K.NONFINITE:
-                raise SimulationError(
+                raise NonFiniteStateError(
                     f"{run.scene.name}: the state became non-finite at step {i} (t = {i * run.dt:.6g} s); "
                     f"last recorded sample at t = {rec_t[n_rec - 1]:.6g} s. Try a smaller dt "
                     f"(now {run.dt:g}) or check the forces and parameters.")

@@ -2,7 +2,7 @@
 
 Mistakes that are the user's (a bad scene, a missing file, a bad ``--set``)
 print one ``jackbox: error: ...`` line and exit with status 2; nothing is
-written. A run that goes wrong (non-finite state) exits with status 1.
+written. A run that goes wrong (the state turns non-finite) exits with status 1.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 from . import __version__
-from .errors import JackboxError
+from .errors import JackboxError, NonFiniteStateError
 
 EPILOG = """\
 examples:
@@ -35,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
         return args.func(args)
     except JackboxError as exc:
         print(f"jackbox: error: {exc}", file=sys.stderr)
-        return 1 if exc.__class__.__name__ == "SimulationError" else 2
+        return 1 if isinstance(exc, NonFiniteStateError) else 2
     except OSError as exc:
         where = f" {exc.filename}" if exc.filename else ""
         print(f"jackbox: error:{where}: {exc.strerror or exc}", file=sys.stderr)
@@ -117,7 +117,9 @@ def cmd_run(args) -> int:
         print(f"impacts    {len(traj.impact_t)} impulses"
               + (f", first at t = {traj.impact_t[0]:.4g} s" if len(traj.impact_t) else ""))
         print(f"energy     {traj.energy[0]:.10g} J at start, {traj.energy[-1]:.10g} J at end")
-        print(f"wall time  {wall:.3f} s (kernel {k['cache'] == 'hit' and 'loaded from cache' or 'compiled'} "
+        how = {"hit": "loaded from cache", "miss": "compiled", "memory": "in memory",
+               "disabled": "not compiled (NUMBA_DISABLE_JIT)"}[k["cache"]]
+        print(f"wall time  {wall:.3f} s (kernel {how} "
               f"in {k['load_seconds']:.2f} s, ran in {k['run_seconds']:.3f} s)")
         if k["steps_per_second"]:
             print(f"speed      {k['steps_per_second']:.3g} steps/s")

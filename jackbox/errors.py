@@ -16,3 +16,7 @@ class SceneError(JackboxError):
 
 class SimulationError(JackboxError):
     """A run that cannot go on (non-finite state, bad arguments)."""
+
+
+class NonFiniteStateError(SimulationError):
+    """The state became NaN or infinite during a run (CLI exit status 1)."""

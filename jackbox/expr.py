@@ -51,8 +51,18 @@ class Expr:
     names: frozenset[str]
 
     def evaluate(self, values: dict[str, float]) -> float:
-        """Numeric value with `values` for the free names (plus `pi`)."""
-        return float(_eval(self.tree, {**CONSTANTS, **values}))
+        """Numeric value with `values` for the free names (plus `pi`).
+
+        Raises :class:`ExprError` when the value is undefined (``1/0``, ``log(0)``,
+        an overflow) or not finite.
+        """
+        try:
+            value = float(_eval(self.tree, {**CONSTANTS, **values}))
+        except (ArithmeticError, ValueError) as exc:
+            raise ExprError(f"cannot be evaluated: {self.text!r} ({exc})") from None
+        if not math.isfinite(value):
+            raise ExprError(f"is not finite: {self.text!r} = {value}")
+        return value
 
 
 def parse(text: object, allowed: set[str] | frozenset[str]) -> Expr:

@@ -132,15 +132,17 @@ def kernel_for(scene: Scene, log=None) -> ModuleType:
 def compile_kernel(module: ModuleType, n_rec: int = 2) -> dict:
     """Make sure the kernel's machine code is ready: compiled now or loaded from cache.
 
-    Returns ``{"seconds": ..., "cache": "hit" | "miss" | "disabled"}``.
+    Returns ``{"seconds": ..., "cache": "hit" | "miss" | "memory" | "disabled"}``:
+    loaded from Numba's cache, compiled now, compiled earlier in this process,
+    or not compiled at all (``NUMBA_DISABLE_JIT=1``).
     """
     import numpy as np
-
-    from . import kernel as _k  # noqa: F401  (status constants only)
 
     t0 = time.perf_counter()
     if numba.config.DISABLE_JIT:
         return {"seconds": 0.0, "cache": "disabled"}
+    if module.integrate.signatures:
+        return {"seconds": 0.0, "cache": "memory"}
     n = module.N_DOF
     p = np.zeros(module.N_PARAM)
     module.integrate(np.zeros(n), np.zeros(n), p, 0.0, 1.0, 0, 0, 0, 1,

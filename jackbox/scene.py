@@ -74,6 +74,7 @@ SCHEMA: dict[str, tuple[str, ...]] = {
 #: Sections whose keys are the user's own names.
 FREE_SECTIONS = ("params", "potential", "forces")
 NAME_RE = re.compile(r"^[a-z0-9_-]+$")
+VERTEX_SLOT_RE = re.compile(r"^jack_[xy][0-9]+$")   # a polygon jack's vertex parameters
 IDENT_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
@@ -286,6 +287,12 @@ class _Checker:
                 self.fail(f"{name}[{i}]", f"must be a finite number, got {item!r}")
         return np.array(value, dtype=float)
 
+    def value_of(self, key: str, formula: _expr.Expr, values: dict[str, float]) -> float:
+        try:
+            return formula.evaluate(values)
+        except _expr.ExprError as exc:
+            self.fail(key, f"{exc} at t = 0" if "t" in values else str(exc))
+
     def formula(self, key: str, value, allowed) -> _expr.Expr:
         try:
             return _expr.parse(value, allowed)
@@ -331,9 +338,10 @@ def _build(raw: dict, source: str, text: str, builtin: bool) -> Scene:
 
     user_params: dict[str, float] = {}
     for key in c.table("params"):
-        if not IDENT_RE.match(key) or key in RESERVED:
+        reserved = key in RESERVED or VERTEX_SLOT_RE.match(key)
+        if not IDENT_RE.match(key) or reserved:
             c.fail(f"params.{key}", "is not a usable parameter name"
-                   + (" (reserved)" if key in RESERVED else " (use letters, digits, _)"))
+                   + (" (reserved)" if reserved else " (use letters, digits, _)"))
         user_params[key] = c.number("params", key)
 
     L = c.number("box", "inner_half_width", positive=True)
@@ -407,7 +415,7 @@ def _build(raw: dict, source: str, text: str, builtin: bool) -> Scene:
         if prescribed and key in BOX_COORDS:
             c.fail(f"forces.{key}", "a prescribed box takes no forces: its motion is given")
         f = c.formula(f"forces.{key}", value, constants | state)
-        if not (f.names or f.evaluate({}) != 0.0):
+        if not f.names and c.value_of(f"forces.{key}", f, {}) == 0.0:
             continue  # a zero force emits nothing
         forces[key] = f.text
 
@@ -432,8 +440,8 @@ def _build(raw: dict, source: str, text: str, builtin: bool) -> Scene:
 
     values = dict(zip(param_names, param_values)) | {"t": 0.0}
     if prescribed:
-        for i, formula in enumerate(motion):
-            q0[i] = _expr.parse(formula, constants).evaluate(values)
+        for i, (coord, formula) in enumerate(zip(("x", "y", "theta"), motion)):
+            q0[i] = c.value_of(f"box.{coord}", _expr.parse(formula, constants), values)
     _check_start(c, q0, points, L, w, ground and not prescribed)
 
     return Scene(
@@ -466,6 +474,11 @@ def _polygon(c: _Checker) -> np.ndarray:
     if np.any(turn <= 1e-12 * size * size):
         bad = int(np.argmax(turn <= 1e-12 * size * size))
         c.fail("jack.vertices", f"the polygon is not strictly convex (at vertex {(bad + 1) % len(pts)})")
+    # left turns everywhere and a total turn of one revolution (a star turns twice)
+    nxt_edges = np.roll(edges, -1, axis=0)
+    dots = (edges * nxt_edges).sum(axis=1)
+    if abs(np.arctan2(turn, dots).sum() - 2.0 * np.pi) > 1e-6:
+        c.fail("jack.vertices", "the polygon is not convex (its edges cross: it winds around more than once)")
     centroid = ((pts + nxt) * cross[:, None]).sum(axis=0) / (6.0 * area)
     if np.hypot(*centroid) > 1e-9 * size:
         c.fail("jack.vertices", f"must be given about the polygon's centroid, which is at "

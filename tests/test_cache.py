@@ -1,0 +1,82 @@
+"""Compiled once, never stale: Numba's cache is reused by a second process and can
+never serve machine code for source that has changed since it was compiled."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import jackbox
+from jackbox import loader
+
+from .conftest import write_scene
+
+RUN = ("import jackbox, json; t = jackbox.simulate('drop', t_end=0.05); "
+       "print(json.dumps(t.meta['kernel']))")
+
+
+def test_second_process_loads_the_kernel_from_cache(tmp_path):
+    env = os.environ | {"JACKBOX_CACHE_DIR": str(tmp_path)}
+    env.pop("NUMBA_DISABLE_JIT", None)
+    runs = [json.loads(subprocess.run([sys.executable, "-c", RUN], env=env, capture_output=True,
+                                      text=True, check=True).stdout) for _ in range(2)]
+    assert [r["cache"] for r in runs] == ["miss", "hit"]
+    # loading is much cheaper than compiling (seconds vs a fraction of one)
+    assert runs[1]["load_seconds"] < runs[0]["load_seconds"] / 3
+
+
+@pytest.fixture
+def fresh_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("JACKBOX_CACHE_DIR", str(tmp_path / "cache"))
+    return tmp_path / "cache"
+
+
+def test_changed_kernel_source_is_recompiled(fresh_cache, tmp_path, monkeypatch):
+    before = jackbox.simulate("drop", t_end=0.3)
+    # An edit of the kernel: the RK4 weights become wrong (1/5 instead of 1/6).
+    edited = tmp_path / "kernel.py"
+    edited.write_text(loader.KERNEL_SOURCE.read_text().replace("h6 = dt / 6.0", "h6 = dt / 5.0"))
+    monkeypatch.setattr(loader, "KERNEL_SOURCE", edited)
+    after = jackbox.simulate("drop", t_end=0.3)
+    assert after.meta["kernel"]["cache"] == "miss"
+    assert np.abs(after.q[-1] - before.q[-1]).max() > 1e-3   # the edit shows: not the old code
+    assert len(list((fresh_cache / "kernels").glob("drop_*.py"))) == 2
+
+
+def test_edited_model_module_is_recompiled(fresh_cache, tmp_path):
+    scene = jackbox.load_scene(write_scene(tmp_path, jackbox.builtin_scenes()["drop"].read_text()))
+    before = jackbox.simulate(scene, t_end=0.3)
+    path = loader.ensure_model(scene)
+    assert path.parent == fresh_cache / "models"
+    # a hand edit that keeps the header (and so the hash): gravity pushes up
+    text = path.read_text()
+    assert "_x2 = -p_g" in text.split("def accel")[1]
+    head, tail = text.split("def accel")
+    path.write_text(head + "def accel" + tail.replace("_x2 = -p_g", "_x2 = p_g", 1))
+    after = jackbox.simulate(scene, t_end=0.3)
+    assert after.meta["kernel"]["cache"] == "miss"
+    assert after.q[-1, 4] > before.q[-1, 4] + 0.5      # the jack rose instead of falling
+
+
+def test_changed_scene_structure_regenerates_the_model(fresh_cache, tmp_path):
+    base = jackbox.builtin_scenes()["drop"].read_text()
+    one = jackbox.load_scene(write_scene(tmp_path, base.replace("[impact]", '[forces]\nx_jack = "2.0"\n\n[impact]'), "a.toml"))
+    two = jackbox.load_scene(write_scene(tmp_path, base.replace("[impact]", '[forces]\nx_jack = "-2.0"\n\n[impact]'), "b.toml"))
+    a, b = jackbox.simulate(one, t_end=0.2), jackbox.simulate(two, t_end=0.2)
+    assert a.meta["model_hash"] != b.meta["model_hash"]
+    # each run used its own force: x differs by (2 - -2) t^2 / 2 / m_jack after t = 0.2 s
+    assert a.q[-1, 3] - b.q[-1, 3] == pytest.approx(0.08, rel=1e-9)
+    assert len(list((fresh_cache / "models").glob("*.py"))) == 2
+
+
+def test_builtin_scene_uses_the_committed_module():
+    scene = jackbox.load_scene("shaken")
+    assert loader.model_path(scene) == loader.GENERATED_DIR / "shaken.py"
+    # a structural change (a ground) moves it to the cache instead of touching generated/
+    grounded = scene.with_overrides({"ground": "true", "initial.q": "[0, 6, 0, 1, 7.5, 0.3]"})
+    assert loader.model_path(grounded).parent.name == "models"

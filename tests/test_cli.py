@@ -1,0 +1,313 @@
+"""The ``jackbox`` command line: help, scenes, run (output file, summary, --set), the
+one-line refusals of user mistakes, and build --check.
+
+Most tests call ``jackbox.cli.main`` in-process; a few go through a real
+``python -m jackbox.cli`` to see exactly what a user sees. Runs are 0.2 s of the
+built-in 'drop' scene, whose kernel is reused from the user's cache.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import jackbox
+from jackbox.cli import main
+from jackbox.scene import builtin_scenes
+
+# SCENES.md, "Output: trajectory file (.npz)"
+NPZ_KEYS = {"t", "q", "qd", "energy", "impact_t", "impact_constraint", "constraint_names",
+            "scene", "meta"}
+DROP_TEXT = builtin_scenes()["drop"].read_text(encoding="utf-8")
+T_END = "0.2"
+N_SAMPLES = 201      # 0.2 s at the scene's dt = 1e-3, both ends included
+
+
+@pytest.fixture(autouse=True)
+def _in_tmp(tmp_path, monkeypatch):
+    # a run without --out writes runs/<name> in the working folder: never in the repo
+    monkeypatch.chdir(tmp_path)
+
+
+def run_cli(capsys, *argv):
+    """main(argv) -> (status, stdout, stderr); argparse exits become statuses too."""
+    try:
+        status = main(list(argv))
+    except SystemExit as exc:
+        status = exc.code
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+def assert_one_line_error(status, out, err):
+    assert status == 2, (status, out, err)
+    assert "Traceback" not in err
+    lines = err.splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("jackbox: error: "), err
+    assert out == ""
+
+
+def files_under(folder: Path) -> set[str]:
+    return {str(p.relative_to(folder)) for p in folder.rglob("*")}
+
+
+# --- help ---------------------------------------------------------------------------------
+
+def test_help_subprocess():
+    proc = subprocess.run([sys.executable, "-m", "jackbox.cli", "--help"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    for word in ("run", "build", "scenes", "--version"):
+        assert word in proc.stdout
+    assert proc.stderr == ""
+
+
+@pytest.mark.parametrize("argv", [[], ["--help"], ["-h"]])
+def test_help(capsys, argv):
+    status, out, _ = run_cli(capsys, *argv)
+    assert status == 0
+    assert "usage: jackbox" in out
+    for command in ("run", "build", "scenes"):
+        assert command in out
+
+
+def test_version(capsys):
+    status, out, _ = run_cli(capsys, "--version")
+    assert status == 0
+    assert jackbox.__version__ in out
+
+
+@pytest.mark.parametrize("command, options", [
+    ("run", ["--t-end", "--dt", "--set", "--record-every", "--out", "--quiet", "-q", "scene"]),
+    ("build", ["--check", "SCENE"]),
+    ("scenes", ["built-in"]),
+])
+def test_subcommand_help(capsys, command, options):
+    status, out, _ = run_cli(capsys, command, "--help")
+    assert status == 0
+    assert f"usage: jackbox {command}" in out
+    for option in options:
+        assert option in out, option
+
+
+# --- scenes -------------------------------------------------------------------------------
+
+def test_scenes_lists_builtins(capsys):
+    status, out, err = run_cli(capsys, "scenes")
+    assert status == 0
+    listed = [line.split()[0] for line in out.splitlines() if line.strip()]
+    assert {"drop", "shaken", "spring"} <= set(listed)
+    # each with its description
+    assert jackbox.load_scene("drop").description in out
+
+
+# --- run ----------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def drop_run(tmp_path_factory):
+    """One quiet 0.2 s run of drop, shared by the tests that only read its output."""
+    out_dir = tmp_path_factory.mktemp("drop_run") / "out"
+    status = main(["run", "drop", "--t-end", T_END, "--out", str(out_dir), "-q"])
+    return status, out_dir
+
+
+def test_run_quiet_writes_only_the_trajectory(drop_run):
+    status, out_dir = drop_run
+    assert status == 0
+    assert files_under(out_dir) == {"trajectory.npz"}
+
+
+def test_run_npz_keys_and_shapes(drop_run):
+    _, out_dir = drop_run
+    with np.load(out_dir / "trajectory.npz", allow_pickle=False) as data:
+        assert set(data.files) == NPZ_KEYS
+        arrays = {k: data[k] for k in data.files}
+    n, k = N_SAMPLES, len(arrays["impact_t"])
+    assert arrays["t"].shape == (n,)
+    assert arrays["q"].shape == (n, 6)
+    assert arrays["qd"].shape == (n, 6)
+    assert arrays["energy"].shape == (n,)
+    assert arrays["impact_t"].shape == (k,)
+    assert arrays["impact_constraint"].shape == (k,)
+    # drop: a square jack (4 corners x 4 walls) and the ground (4 box corners)
+    names = [str(s) for s in arrays["constraint_names"]]
+    assert len(names) == 20
+    assert names[:4] == ["right:0", "right:1", "right:2", "right:3"]
+    assert names[-4:] == ["ground:0", "ground:1", "ground:2", "ground:3"]
+    assert arrays["scene"].shape == () and arrays["meta"].shape == ()
+    assert arrays["t"][0] == 0.0
+    assert arrays["t"][-1] == pytest.approx(0.2)
+    np.testing.assert_allclose(arrays["q"][0], [0.0, 2.0, 0.3, 0.0, 2.0, 0.0])
+    assert str(arrays["scene"]) == DROP_TEXT
+    meta = json.loads(str(arrays["meta"]))
+    assert {"jackbox", "method", "dt", "params", "model_hash"} <= set(meta)
+    assert meta["jackbox"] == jackbox.__version__
+    assert meta["dt"] == 1e-3
+    assert meta["params"]["e"] == 1.0
+
+
+def test_run_npz_round_trips_through_trajectory(drop_run, tmp_path):
+    _, out_dir = drop_run
+    path = out_dir / "trajectory.npz"
+    traj = jackbox.Trajectory.load(path)
+    with np.load(path, allow_pickle=False) as data:
+        for key in ("t", "q", "qd", "energy", "impact_t", "impact_constraint"):
+            np.testing.assert_array_equal(getattr(traj, key), data[key])
+        assert traj.constraint_names == tuple(str(s) for s in data["constraint_names"])
+        assert traj.meta == json.loads(str(data["meta"]))
+    assert traj.scene == DROP_TEXT
+    assert len(traj) == N_SAMPLES
+    again = jackbox.Trajectory.load(traj.save(tmp_path / "again.npz"))
+    for key in ("t", "q", "qd", "energy", "impact_t", "impact_constraint"):
+        np.testing.assert_array_equal(getattr(again, key), getattr(traj, key))
+    assert (again.constraint_names, again.scene, again.meta) == (traj.constraint_names, traj.scene, traj.meta)
+
+
+def test_run_prints_summary(capsys, tmp_path):
+    out_dir = tmp_path / "out"
+    status, out, _ = run_cli(capsys, "run", "drop", "--t-end", T_END, "--out", str(out_dir))
+    assert status == 0
+    for word in ("steps", "impacts", "energy", "steps/s"):
+        assert word in out, out
+    assert "200 of dt" in out          # 0.2 s / 1e-3
+    assert str(out_dir / "trajectory.npz") in out
+    assert (out_dir / "trajectory.npz").is_file()
+
+
+def test_run_set_restitution_reaches_meta(capsys, tmp_path):
+    out_dir = tmp_path / "out"
+    status, _, err = run_cli(capsys, "run", "drop", "--t-end", T_END, "--out", str(out_dir), "-q",
+                             "--set", "restitution=0.6")
+    assert status == 0, err
+    params = jackbox.Trajectory.load(out_dir / "trajectory.npz").meta["params"]
+    assert params["e"] == 0.6
+    assert params["e_ground"] == 0.6    # ground_restitution follows restitution
+
+
+def test_run_scene_file(capsys, tmp_path):
+    path = tmp_path / "mine.toml"
+    path.write_text(DROP_TEXT.replace('name = "drop"', 'name = "mine"'), encoding="utf-8")
+    # same structure as drop: the same compiled kernel serves it
+    status, _, err = run_cli(capsys, "run", str(path), "--t-end", T_END, "--out", "res", "-q")
+    assert status == 0, err
+    traj = jackbox.Trajectory.load(tmp_path / "res" / "trajectory.npz")
+    assert traj.meta["scene"] == "mine"
+    assert 'name = "mine"' in traj.scene
+
+
+def test_run_record_every(capsys, tmp_path):
+    status, _, err = run_cli(capsys, "run", "drop", "--t-end", T_END, "--record-every", "10",
+                             "--out", "out", "-q")
+    assert status == 0, err
+    traj = jackbox.Trajectory.load(tmp_path / "out" / "trajectory.npz")
+    assert len(traj) == 21
+    assert traj.t[-1] == pytest.approx(0.2)
+
+
+# --- user mistakes: status 2, one line, nothing written -----------------------------------
+
+def _malformed_toml(tmp_path):
+    path = tmp_path / "broken.toml"
+    path.write_text(DROP_TEXT.replace("[jack]", "[jack"), encoding="utf-8")
+    return str(path), "TOML"
+
+
+def _invalid_value(tmp_path):
+    path = tmp_path / "bad.toml"
+    path.write_text(DROP_TEXT.replace("restitution = 1.0", "restitution = 1.5"), encoding="utf-8")
+    return str(path), "impact.restitution"
+
+
+def _missing_file(tmp_path):
+    return str(tmp_path / "nowhere.toml"), "no such"
+
+
+def _missing_builtin(tmp_path):
+    return "no_such_scene", "no such"
+
+
+@pytest.mark.parametrize("make", [_missing_file, _missing_builtin, _malformed_toml, _invalid_value])
+def test_bad_scene(capsys, tmp_path, make):
+    scene, word = make(tmp_path)
+    out_dir = tmp_path / "out"
+    before = files_under(tmp_path)
+    result = run_cli(capsys, "run", scene, "--t-end", T_END, "--out", str(out_dir))
+    assert_one_line_error(*result)
+    assert word in result[2]
+    if scene.endswith(".toml"):
+        assert scene in result[2]       # the message names the file
+    assert files_under(tmp_path) == before
+
+
+@pytest.mark.parametrize("setting, word", [
+    ("restitution", "NAME=VALUE"),         # no '='
+    ("=0.6", "NAME=VALUE"),                # no name
+    ("nosuch=1", "--set nosuch"),          # unknown name
+    ("mass=2", "--set mass"),              # in [box] and [jack]: ambiguous
+    ("restitution=2", "impact.restitution"),
+])
+def test_bad_set(capsys, tmp_path, setting, word):
+    before = files_under(tmp_path)
+    result = run_cli(capsys, "run", "drop", "--t-end", T_END, "--out", str(tmp_path / "out"),
+                     "--set", setting)
+    assert_one_line_error(*result)
+    assert word in result[2]
+    assert files_under(tmp_path) == before
+
+
+def test_out_is_a_regular_file(capsys, tmp_path):
+    target = tmp_path / "taken"
+    target.write_bytes(b"not a folder")
+    result = run_cli(capsys, "run", "drop", "--t-end", T_END, "--out", str(target))
+    assert_one_line_error(*result)
+    assert str(target) in result[2]
+    assert target.read_bytes() == b"not a folder"
+    assert files_under(tmp_path) == {"taken"}
+
+
+def test_failed_run_leaves_existing_trajectory_intact(capsys, tmp_path):
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    old = out_dir / "trajectory.npz"
+    old.write_bytes(b"an earlier run")
+    scene, _ = _invalid_value(tmp_path)
+    result = run_cli(capsys, "run", scene, "--t-end", T_END, "--out", str(out_dir))
+    assert_one_line_error(*result)
+    assert old.read_bytes() == b"an earlier run"
+    assert files_under(out_dir) == {"trajectory.npz"}
+
+
+def test_bad_scene_subprocess_shows_no_traceback(tmp_path):
+    scene, _ = _malformed_toml(tmp_path)
+    proc = subprocess.run([sys.executable, "-m", "jackbox.cli", "run", scene, "--out", "out"],
+                          capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert proc.returncode == 2
+    assert proc.stdout == ""
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("jackbox: error: "), proc.stderr
+    assert scene in lines[0] and "TOML" in lines[0]
+    assert not (tmp_path / "out").exists()
+
+
+def test_force_that_cannot_be_evaluated_is_one_line(capsys, tmp_path):
+    path = tmp_path / "div.toml"
+    path.write_text(DROP_TEXT + '\n[forces]\nx_box = "1/0"\n', encoding="utf-8")
+    result = run_cli(capsys, "run", str(path), "--t-end", T_END, "--out", str(tmp_path / "out"))
+    assert_one_line_error(*result)
+
+
+# --- build --------------------------------------------------------------------------------
+
+def test_build_check_builtins_current(capsys):
+    status, out, err = run_cli(capsys, "build", "--check")
+    assert status == 0, out + err
+    lines = out.splitlines()
+    assert len(lines) == len(builtin_scenes())
+    for name in ("drop", "shaken", "spring"):
+        assert any(line.startswith("current") and line.endswith(f"{name}.py") for line in lines), out
