@@ -16,14 +16,17 @@ VERSION = "0.1.0"
 
 
 def _source_digest() -> str:
+    # the compiler's own stages, and the formula grammar they consume
+    here = Path(__file__).resolve().parent
+    sources = sorted(here.glob("*.py")) + [here.parent / "jackbox" / "expr.py"]
     digest = hashlib.sha256()
-    for path in sorted(Path(__file__).parent.glob("*.py")):
+    for path in sources:
         digest.update(path.name.encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()[:12]
 
 
-#: Generator id written into every header: version and a digest of codegen/*.py.
+#: Generator id written into every header: version and a digest of the compiler's source.
 GENERATOR = f"jackbox-codegen {VERSION} (source {_source_digest()})"
 
 
