@@ -111,7 +111,8 @@ def load_kernel(model_file: Path, kernel_text: str | None = None) -> ModuleType:
     key = hashlib.sha256((numba.__version__ + "\0" + text).encode()).hexdigest()[:16]
     if key in _loaded:
         return _loaded[key]
-    stem = model_file.stem.split("_")[0] if model_file.parent.name == "models" else model_file.stem
+    # cached models are <name>_<hash>.py, committed ones <name>.py
+    stem = model_file.stem.rsplit("_", 1)[0] if model_file.parent.name == "models" else model_file.stem
     path = cache_dir() / "kernels" / f"{_ident(stem)}_{key}.py"
     if not path.exists() or path.read_text() != text:
         write_atomic(path, text)
