@@ -54,7 +54,7 @@ def _parser() -> argparse.ArgumentParser:
 
     run = sub.add_parser("run", help="simulate a scene and write its trajectory",
                          description="Simulate a scene (default: shaken), print a summary and write "
-                                     "DIR/trajectory.npz (see SCENES.md for its keys).")
+                                     "DIR/trajectory.npz (its keys: docs/scenes.md).")
     run.add_argument("scene", nargs="?", default="shaken",
                      help="built-in scene name or path to a .toml scene file (default: shaken)")
     run.add_argument("--t-end", type=float, metavar="T", help="simulated time in s (default: the scene's)")
