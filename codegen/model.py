@@ -68,10 +68,9 @@ class Model:
     @property
     def mass_is_constant_diagonal(self) -> bool:
         n = self.M.shape[0]
-        off = all(self.M[i, j] == 0 for i in range(n) for j in range(n) if i != j)
-        const = not (self.M.free_symbols & set(self.q) | self.M.free_symbols & set(self.qd)
-                     or self.t in self.M.free_symbols)
-        return off and const
+        diagonal = all(self.M[i, j] == 0 for i in range(n) for j in range(n) if i != j)
+        constant = not self.M.free_symbols & {self.t, *self.q, *self.qd}
+        return diagonal and constant
 
 
 def se2(x, y, theta) -> sp.Matrix:

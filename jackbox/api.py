@@ -107,7 +107,8 @@ def simulate(scene: Scene | str, t_end: float | None = None, dt: float | None = 
     n = run.n_samples
     rec_t, rec_e = np.empty(n), np.empty(n)
     rec_q, rec_qd = np.empty((n, 6)), np.empty((n, 6))
-    imp_t, imp_k = np.empty(max(1024, 4 * kernel.N_CONTACT)), np.empty(max(1024, 4 * kernel.N_CONTACT), np.int64)
+    log_size = max(1024, 4 * kernel.N_CONTACT)
+    imp_t, imp_k = np.empty(log_size), np.empty(log_size, np.int64)
     q, qd = run.q.copy(), run.qd.copy()
     i = n_rec = n_imp = 0
     bar = _progress(run.n_steps, progress)

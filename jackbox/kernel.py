@@ -167,24 +167,19 @@ def solve_lcp(A, b, m, lam):
 
 
 @njit(cache=True)
-def resolve_impacts(t, q, qd, p, gap, active_tol, imp_t, imp_k, n_imp):
+def resolve_impacts(t, q, qd, p, gap, active_tol, rows, imp_t, imp_k, n_imp):
     """Apply the impulses of every contact with ``gap < active_tol`` that takes part.
 
     Changes qd in place; logs each contact that received an impulse. Returns the
-    new log length.
+    new log length. ``rows``: (N_CONTACT,) int scratch.
     """
-    m = 0
-    for k in range(N_CONTACT):
-        if gap[k] < active_tol:
-            m += 1
-    if m == 0:
-        return n_imp
-    rows = np.empty(m, np.int64)
     m = 0
     for k in range(N_CONTACT):
         if gap[k] < active_tol:
             rows[m] = k
             m += 1
+    if m == 0:
+        return n_imp
     jac = np.empty((N_CONTACT, N_DOF))
     phi_q(t, q, p, jac)
     v_t = np.zeros(N_CONTACT)
@@ -255,6 +250,7 @@ def integrate(q, qd, p, t0, dt, i_begin, i_end, n_total, record_every,
     """
     work = np.empty((8, N_DOF))
     gap = np.empty(N_CONTACT)
+    rows = np.empty(N_CONTACT, np.int64)
     box = np.empty(6)
     if i_begin == 0:
         record(t0, q, qd, p, n_rec, rec_t, rec_q, rec_qd, rec_energy, box)
@@ -266,7 +262,7 @@ def integrate(q, qd, p, t0, dt, i_begin, i_end, n_total, record_every,
         t_next = t0 + (i + 1) * dt
         rk4_step(t, q, qd, dt, p, q, qd, work)
         phi(t_next, q, p, gap)
-        n_imp = resolve_impacts(t_next, q, qd, p, gap, 0.0, imp_t, imp_k, n_imp)
+        n_imp = resolve_impacts(t_next, q, qd, p, gap, 0.0, rows, imp_t, imp_k, n_imp)
         for d in range(N_DOF):
             if not (math.isfinite(q[d]) and math.isfinite(qd[d])):
                 return i + 1, n_rec, n_imp, NONFINITE

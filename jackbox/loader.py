@@ -28,6 +28,7 @@ from pathlib import Path
 from types import ModuleType
 
 import numba
+import numpy as np
 
 from codegen.version import model_hash
 
@@ -137,8 +138,6 @@ def compile_kernel(module: ModuleType, n_rec: int = 2) -> dict:
     loaded from Numba's cache, compiled now, compiled earlier in this process,
     or not compiled at all (``NUMBA_DISABLE_JIT=1``).
     """
-    import numpy as np
-
     t0 = time.perf_counter()
     if numba.config.DISABLE_JIT:
         return {"seconds": 0.0, "cache": "disabled"}

@@ -78,6 +78,12 @@ VERTEX_SLOT_RE = re.compile(r"^jack_[xy][0-9]+$")   # a polygon jack's vertex pa
 IDENT_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
+def constraint_names(n_points: int, ground: bool) -> tuple[str, ...]:
+    """``"<wall>:<point>"`` wall-major, then ``"ground:<corner>"`` when there is a ground."""
+    names = [f"{wall}:{i}" for wall in WALLS for i in range(n_points)]
+    return tuple(names + ([f"ground:{i}" for i in range(4)] if ground else []))
+
+
 def builtin_scenes() -> dict[str, Path]:
     """Names and paths of the scenes shipped with jackbox."""
     folder = resources.files("jackbox.scenes")
@@ -118,10 +124,7 @@ class Scene:
 
     @property
     def constraint_names(self) -> tuple[str, ...]:
-        names = [f"{wall}:{i}" for wall in WALLS for i in range(len(self.points))]
-        if self.has_ground_contacts:
-            names += [f"ground:{i}" for i in range(4)]
-        return tuple(names)
+        return constraint_names(len(self.points), self.has_ground_contacts)
 
     @property
     def has_ground_contacts(self) -> bool:
@@ -530,5 +533,5 @@ def _check_start(c: _Checker, q0, points, L, w, ground) -> None:
     tol = 1e-9 * L
     worst = int(np.argmin(gaps))
     if gaps[worst] < -tol:
-        names = [f"{wall}:{i}" for wall in WALLS for i in range(len(points))] + [f"ground:{i}" for i in range(4)]
-        c.fail("initial.q", f"the start state penetrates: contact {names[worst]!r} has gap {gaps[worst]:.6g} < 0")
+        name = constraint_names(len(points), ground)[worst]
+        c.fail("initial.q", f"the start state penetrates: contact {name!r} has gap {gaps[worst]:.6g} < 0")
