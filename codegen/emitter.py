@@ -66,6 +66,12 @@ def functions(model: Model) -> list[Function]:
         Function("phi_q", ("t", "q", "p"), list(model.phi_q), (C, n),
                  "phi_q: (C, n) Jacobian of the gaps with respect to q."),
     ]
+    fs += [
+        Function("gap_rate", ("t", "q", "qd", "p"), list(model.gap_rate), (C,),
+                 "(C,) gap rates d phi/dt = phi_q qd + phi_t."),
+        Function("gap_bias", ("t", "q", "qd", "p"), list(model.gap_bias), (C,),
+                 "(C,) velocity terms of the gap accelerations: d2 phi/dt2 = phi_q qdd + gap_bias."),
+    ]
     if model.phi_t is not None:
         fs.append(Function("phi_t", ("t", "q", "p"), list(model.phi_t), (C,),
                            "phi_t: (C,) explicit time derivative of the gaps (moving box)."))

@@ -16,7 +16,9 @@ From a checked :class:`jackbox.scene.Scene` this builds, with sympy:
   with ``M = d^2 L / dqd^2`` and ``f = Q + dL/dq - (d^2 L / dqd dq) qd - d^2 L / dqd dt``;
 * the gap vector ``phi(t, q)`` (jack points against the inner walls in the box
   frame, ``phi = L - n . (g_wb^{-1} g_wj v)``; box corners against the ground),
-  its Jacobian ``phi_q`` and, for a prescribed box, ``phi_t``;
+  its Jacobian ``phi_q`` and, for a prescribed box, ``phi_t``; the gap rates
+  ``phi_q qd + phi_t`` and the velocity terms of the gap accelerations
+  (``gap_bias``, with ``d^2 phi/dt^2 = phi_q qdd + gap_bias``);
 * the energy ``T + V`` of both bodies.
 
 Masses, sizes, inertias, g, restitutions and ``[params]`` stay symbols (the
@@ -60,6 +62,8 @@ class Model:
     phi: sp.Matrix                #: (C,) gaps
     phi_q: sp.Matrix              #: (C, n)
     phi_t: sp.Matrix | None       #: (C,) explicit time derivative (prescribed box only)
+    gap_rate: sp.Matrix           #: (C,) d phi / dt = phi_q qd + phi_t
+    gap_bias: sp.Matrix           #: (C,) d^2 phi / dt^2 at qdd = 0 (contact accelerations)
     energy: sp.Expr
     box_motion: sp.Matrix | None  #: (6,) pose and rates of a prescribed box
     constraint_names: tuple[str, ...]
@@ -203,10 +207,15 @@ def derive(scene: Scene) -> Model:
     phi = sp.Matrix(rows)
     phi_q = phi.jacobian(q)
     phi_t = phi.diff(t) if scene.prescribed else None
+    # Rates and the velocity-product part of the gap accelerations,
+    # d^2 phi/dt^2 = phi_q qdd + gap_bias, used by persistent contacts.
+    gap_rate = phi_q * sp.Matrix(qd) + (phi_t if phi_t is not None else sp.zeros(len(rows), 1))
+    gap_bias = gap_rate.jacobian(q) * sp.Matrix(qd) + (gap_rate.diff(t) if scene.prescribed
+                                                      else sp.zeros(len(rows), 1))
     box_motion = sp.Matrix(box_pose + box_rate) if scene.prescribed else None
 
     return Model(
         name=scene.name, structure=scene.structure(), t=t, q=q, qd=qd, p=p,
-        M=M, f=f, phi=phi, phi_q=phi_q, phi_t=phi_t, energy=T + V, box_motion=box_motion,
+        M=M, f=f, phi=phi, phi_q=phi_q, phi_t=phi_t, gap_rate=gap_rate, gap_bias=gap_bias, energy=T + V, box_motion=box_motion,
         constraint_names=scene.constraint_names, n_wall_contacts=n_wall,
     )

@@ -23,7 +23,12 @@ from .scene import Scene, load_scene
 from .trajectory import Trajectory
 
 CHUNK = 1 << 15          #: steps per kernel call (progress granularity)
-METHODS = ("naive",)
+LOG_SIZE = 1024          #: first size of the event log (it doubles when full)
+#: "exact" locates every contact event; "naive" applies impulses at the end of
+#: the step in which a gap went negative (the original designs' method)
+METHODS = ("exact", "naive")
+#: tolerances of the exact method, relative to the scene's size and speed (see tolerances())
+GAP_TOL, EVENT_TOL, REST_TOL = 1e-9, 1e-12, 1e-7
 
 
 @dataclass
@@ -44,7 +49,7 @@ class Run:
         return self.n_steps // self.record_every + 1 + (self.n_steps % self.record_every != 0)
 
 
-def prepare(scene, t_end=None, dt=None, record_every=1, params=None, method="naive") -> Run:
+def prepare(scene, t_end=None, dt=None, record_every=1, params=None, method="exact") -> Run:
     """Check the arguments of a run and resolve defaults from the scene."""
     scene = load_scene(scene)
     t_end = scene.t_end if t_end is None else float(t_end)
@@ -73,7 +78,50 @@ def prepare(scene, t_end=None, dt=None, record_every=1, params=None, method="nai
     return Run(scene, p, q, qd, dt, n_steps, int(record_every), method)
 
 
-def finish(run: Run, t, q, qd, energy, impact_t, impact_k, extra: dict) -> Trajectory:
+def tolerances(run: Run, kernel) -> np.ndarray:
+    """The tolerance array of the exact method (slots ``T_*`` of jackbox/kernel.py).
+
+    Lengths scale with the box's inner half-size L: contacts closer than 1e-9 L
+    take part in an impact; events are located where a gap is -0.5e-12 L
+    (a guard against round-off, far below anything visible). Normal speeds
+    below 1e-7 sqrt(g L) count as at rest: such a contact gets a plastic
+    impulse and becomes persistent, which ends a Zeno cascade of bounces
+    (remaining flight time below 2e-7 sqrt(L/g) / (1 - e)). Speed bounds
+    (the largest rate of change of any gap per unit of each rate, and of a
+    prescribed box's motion) decide which steps need the in-step dip test.
+    """
+    scene, p = run.scene, run.p
+    P = dict(zip(scene.param_names, p))
+    L, w, g = P["L"], P["w_box"], abs(P["g"])
+    v_scale = math.sqrt(g * L) if g > 0 else L / max(run.n_steps * run.dt, run.dt)
+    if "a_jack" in P:
+        r_jack = P["a_jack"] * (math.sqrt(2.0) if scene.shape == "square" else 1.0)
+    else:
+        n = len(scene.points)
+        r_jack = max(math.hypot(P[f"jack_x{i}"], P[f"jack_y{i}"]) for i in range(n))
+    r_box = math.sqrt(2.0) * (L + w)
+    tol = np.zeros(kernel.T_SPEED + kernel.N_DOF)
+    tol[kernel.T_GAP] = GAP_TOL * L
+    tol[kernel.T_EVENT] = EVENT_TOL * L
+    tol[kernel.T_VREST] = REST_TOL * v_scale
+    reach = [1.0, 1.0, 1.5 * r_jack]               # x, y, theta of the jack
+    if scene.prescribed:
+        # sample the box's motion densely; twice the largest speed seen bounds it
+        ts = np.linspace(0.0, run.n_steps * run.dt, max(2001, 4 * run.n_steps + 1))
+        box = np.empty(6)
+        speed = 0.0
+        for t in ts[:: max(1, len(ts) // 20000)]:
+            kernel.box_motion(t, p, box)
+            speed = max(speed, math.hypot(box[3], box[4]) + abs(box[5]) * r_box)
+        tol[kernel.T_BOXV] = 2.0 * speed
+    else:
+        reach = [1.0, 1.0, 1.5 * r_box] + reach
+    tol[kernel.T_SPEED:] = reach
+    return tol
+
+
+def finish(run: Run, t, q, qd, energy, impact_t, impact_k, extra: dict,
+           contact_t=None, contact_k=None, contact_kind=None) -> Trajectory:
     scene = run.scene
     meta = {
         "jackbox": __version__, "scene": scene.name, "method": run.method, "dt": run.dt,
@@ -81,14 +129,18 @@ def finish(run: Run, t, q, qd, energy, impact_t, impact_k, extra: dict) -> Traje
         "params": dict(zip(scene.param_names, run.p.tolist())),
         "model_hash": loader.model_hash(scene.structure()),
     } | extra
+    empty = np.empty(0)
     return Trajectory(t=t, q=q, qd=qd, energy=energy, impact_t=impact_t,
                       impact_constraint=impact_k.astype(np.int64),
-                      constraint_names=scene.constraint_names, scene=scene.text, meta=meta)
+                      constraint_names=scene.constraint_names, scene=scene.text, meta=meta,
+                      contact_t=empty if contact_t is None else contact_t,
+                      contact_constraint=(empty if contact_k is None else contact_k).astype(np.int64),
+                      contact_event=(empty if contact_kind is None else contact_kind).astype(np.int64))
 
 
 def simulate(scene: Scene | str, t_end: float | None = None, dt: float | None = None,
              record_every: int = 1, params: dict[str, float] | None = None, *,
-             method: str = "naive", progress: bool = False, log=None) -> Trajectory:
+             method: str = "exact", progress: bool = False, log=None) -> Trajectory:
     """Simulate a scene with its compiled kernel.
 
     scene: a :class:`Scene`, a built-in name or a path to a ``.toml``.
@@ -96,6 +148,9 @@ def simulate(scene: Scene | str, t_end: float | None = None, dt: float | None = 
     record_every: keep every k-th step (and the last one).
     params: values for parameter slots by name (``[params]`` names, ``m_box``,
     ``e`` ...); nothing is regenerated or recompiled.
+    method: ``"exact"`` (every impact located in time, simultaneous contacts
+    solved together, resting contact) or ``"naive"`` (impulse at the end of
+    the step in which a gap went negative, first order at impacts).
     progress: show a progress bar (on stderr). log: a callable for status lines.
     """
     run = prepare(scene, t_end, dt, record_every, params, method)
@@ -107,29 +162,42 @@ def simulate(scene: Scene | str, t_end: float | None = None, dt: float | None = 
     n = run.n_samples
     rec_t, rec_e = np.empty(n), np.empty(n)
     rec_q, rec_qd = np.empty((n, 6)), np.empty((n, 6))
-    log_size = max(1024, 4 * kernel.N_CONTACT)
-    imp_t, imp_k = np.empty(log_size), np.empty(log_size, np.int64)
+    log_size = max(LOG_SIZE, 8 * kernel.N_CONTACT)
+    ev_t, ev_k, ev_kind = np.empty(log_size), np.empty(log_size, np.int64), np.zeros(log_size, np.int64)
     q, qd = run.q.copy(), run.qd.copy()
-    i = n_rec = n_imp = 0
+    exact = run.method == "exact"
+    if exact:
+        rest = np.zeros(kernel.N_CONTACT, np.int64)
+        tol = tolerances(run, kernel)
+    i = n_rec = n_ev = 0
     bar = _progress(run.n_steps, progress)
     t_run = time.perf_counter()
     try:
         while i < run.n_steps:
             i_end = min(i + CHUNK, run.n_steps)
-            i_new, n_rec, n_imp, status = kernel.integrate(
-                q, qd, run.p, 0.0, run.dt, i, i_end, run.n_steps, run.record_every,
-                rec_t, rec_q, rec_qd, rec_e, n_rec, imp_t, imp_k, n_imp)
+            if exact:
+                i_new, n_rec, n_ev, status = kernel.integrate_exact(
+                    q, qd, rest, run.p, tol, 0.0, run.dt, i, i_end, run.n_steps, run.record_every,
+                    rec_t, rec_q, rec_qd, rec_e, n_rec, ev_t, ev_k, ev_kind, n_ev)
+            else:
+                i_new, n_rec, n_ev, status = kernel.integrate(
+                    q, qd, run.p, 0.0, run.dt, i, i_end, run.n_steps, run.record_every,
+                    rec_t, rec_q, rec_qd, rec_e, n_rec, ev_t, ev_k, n_ev)
             if bar is not None:
                 bar.update(i_new - i)
             i = i_new
             if status == K.IMPACT_LOG_FULL:
-                imp_t = np.concatenate([imp_t, np.empty_like(imp_t)])
-                imp_k = np.concatenate([imp_k, np.empty_like(imp_k)])
+                ev_t, ev_k, ev_kind = (np.concatenate([a, np.zeros_like(a)]) for a in (ev_t, ev_k, ev_kind))
             elif status == K.NONFINITE:
                 raise NonFiniteStateError(
                     f"{run.scene.name}: the state became non-finite at step {i} (t = {i * run.dt:.6g} s); "
                     f"last recorded sample at t = {rec_t[n_rec - 1]:.6g} s. Try a smaller dt "
                     f"(now {run.dt:g}) or check the forces and parameters.")
+            elif status == K.STALLED:
+                raise SimulationError(
+                    f"{run.scene.name}: more than {K.MAX_EVENTS} contact events in the step at "
+                    f"t = {i * run.dt:.6g} s; the contacts may be wedged. Try method='naive' "
+                    f"or a different start.")
     finally:
         if bar is not None:
             bar.close()
@@ -137,8 +205,13 @@ def simulate(scene: Scene | str, t_end: float | None = None, dt: float | None = 
     extra = {"kernel": {"cache": compiled["cache"], "load_seconds": load_seconds,
                         "run_seconds": run_seconds,
                         "steps_per_second": run.n_steps / run_seconds if run_seconds > 0 else None}}
+    if exact:
+        extra["tolerances"] = {"gap": tol[K.T_GAP], "event": tol[K.T_EVENT], "v_rest": tol[K.T_VREST]}
+    ev_t, ev_k, ev_kind = ev_t[:n_ev], ev_k[:n_ev], ev_kind[:n_ev]
+    hit = ev_kind == K.IMPULSE
     return finish(run, rec_t[:n_rec], rec_q[:n_rec], rec_qd[:n_rec], rec_e[:n_rec],
-                  imp_t[:n_imp].copy(), imp_k[:n_imp].copy(), extra)
+                  ev_t[hit].copy(), ev_k[hit].copy(), extra,
+                  ev_t[~hit].copy(), ev_k[~hit].copy(), ev_kind[~hit].copy())
 
 
 def _progress(total: int, enabled: bool) -> Any:

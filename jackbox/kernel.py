@@ -36,8 +36,23 @@ from numba import njit
 DONE = 0
 IMPACT_LOG_FULL = 1
 NONFINITE = 2
+STALLED = 3
 #: largest contact set solved exactly by enumeration; larger ones use Gauss-Seidel
 MAX_ENUMERATED = 10
+
+# Kinds of contact events in the event log.
+IMPULSE = 0          #: an impulse acted on the contact
+REST = 1             #: the contact became persistent (gap held at zero)
+RELEASE = 2          #: a persistent contact let go (its force would have pulled)
+
+# Slots of the tolerance array of :func:`integrate_exact` (filled by jackbox.api).
+T_GAP = 0            #: contacts closer than this take part in impacts and resting contact
+T_EVENT = 1          #: an event is located where gap = -T_EVENT / 2 (round-off guard)
+T_VREST = 2          #: normal speeds below this are "at rest": plastic impact, then persistent
+T_BOXV = 3           #: bound on the speed of any point of a prescribed box
+T_SPEED = 4          #: T_SPEED + i: bound on |d gap / d qd_i| (1 or a radius)
+#: events allowed inside one step before the run stops with STALLED
+MAX_EVENTS = 10000
 
 
 @njit(cache=True)
@@ -270,3 +285,573 @@ def integrate(q, qd, p, t0, dt, i_begin, i_end, n_total, record_every,
             record(t_next, q, qd, p, n_rec, rec_t, rec_q, rec_qd, rec_energy, box)
             n_rec += 1
     return i_end, n_rec, n_imp, DONE
+
+
+# ---------------------------------------------------------------------------
+# method "exact": located events, simultaneous impacts, persistent contact
+# ---------------------------------------------------------------------------
+#
+# Between events the state follows RK4 on the dynamics with the persistent
+# contacts R held closed: qdd = M^-1 f + M^-1 J_R^T lam, with lam solving
+# (J_R M^-1 J_R^T) lam = -(J_R M^-1 f + gap_bias_R) (gap accelerations zero).
+# A step that would end with a free gap below zero, or whose cubic through
+# the gaps and rates at both ends dips below zero (a grazing corner), is
+# re-stepped from its start with shorter steps (Illinois iteration on the step
+# length) to the first crossing, so the state at the event is an RK4 state and
+# the method keeps order four. Likewise a persistent contact whose force lam
+# would turn negative is released where lam = 0.
+#
+# Scratch rows of the (SC, N_CONTACT) float array `sc` and the (SN, N_DOF) `sn`.
+_GA, _GB, _GS, _VA, _VB, _BIAS, _RHS, _LAM, _W = 0, 1, 2, 3, 4, 5, 6, 7, 8
+SC = 9
+_QB, _QDB, _QS, _QDS, _WINV, _AF = 0, 1, 2, 3, 4, 5
+SN = 6
+
+
+@njit(cache=True)
+def rest_index(rest, ridx):
+    """Indices of the persistent contacts into ridx; returns their number."""
+    m = 0
+    for k in range(N_CONTACT):
+        if rest[k]:
+            ridx[m] = k
+            m += 1
+    return m
+
+
+@njit(cache=True)
+def contact_matrix(jac, winv, ridx, m, A):
+    """``A = J_R M^-1 J_R^T`` for the m contacts listed in ridx."""
+    for i in range(m):
+        for j in range(i, m):
+            s = 0.0
+            for d in range(N_DOF):
+                s += jac[ridx[i], d] * winv[d] * jac[ridx[j], d]
+            A[i, j] = s
+            A[j, i] = s
+
+
+@njit(cache=True)
+def solve_regularised(A, rhs, m, x):
+    """Solve ``A x = rhs`` for PSD A; a redundant contact set gets a tiny diagonal shift."""
+    if solve_dense(A, rhs, m, x):
+        return
+    scale = 0.0
+    for i in range(m):
+        scale = max(scale, A[i, i])
+    B = A[:m, :m].copy()
+    for i in range(m):
+        B[i, i] += 1e-10 * scale
+    if not solve_dense(B, rhs, m, x):
+        for i in range(m):
+            x[i] = 0.0
+
+
+@njit(cache=True)
+def contact_accel(t, q, qd, p, ridx, m, a, jac, sc, A):
+    """Accelerations with the m persistent contacts in ridx held closed.
+
+    Fills a; leaves the contact forces in ``sc[_LAM, :m]`` and ``jac = phi_q``.
+    """
+    accel(t, q, qd, p, a)
+    if m == 0:
+        return
+    winv = np.empty(N_DOF)
+    inverse_mass(p, winv)
+    phi_q(t, q, p, jac)
+    bias, rhs, lam = sc[_BIAS], sc[_RHS], sc[_LAM]
+    gap_bias(t, q, qd, p, bias)
+    contact_matrix(jac, winv, ridx, m, A)
+    for i in range(m):
+        k = ridx[i]
+        s = bias[k]
+        for d in range(N_DOF):
+            s += jac[k, d] * a[d]
+        rhs[i] = -s
+    solve_regularised(A, rhs, m, lam)
+    for d in range(N_DOF):
+        s = 0.0
+        for i in range(m):
+            s += jac[ridx[i], d] * lam[i]
+        a[d] += winv[d] * s
+
+
+@njit(cache=True)
+def rk4_contact(t, q, qd, dt, p, q_out, qd_out, work, ridx, m, jac, sc, A):
+    """One RK4 step of the dynamics with the persistent contacts held (plain RK4 if none)."""
+    if m == 0:
+        rk4_step(t, q, qd, dt, p, q_out, qd_out, work)
+        return
+    qs, vs, a1, a2, a3, a4, v2, v3 = (work[0], work[1], work[2], work[3],
+                                      work[4], work[5], work[6], work[7])
+    h2 = 0.5 * dt
+    contact_accel(t, q, qd, p, ridx, m, a1, jac, sc, A)
+    for i in range(N_DOF):
+        qs[i] = q[i] + h2 * qd[i]
+        v2[i] = qd[i] + h2 * a1[i]
+    contact_accel(t + h2, qs, v2, p, ridx, m, a2, jac, sc, A)
+    for i in range(N_DOF):
+        qs[i] = q[i] + h2 * v2[i]
+        v3[i] = qd[i] + h2 * a2[i]
+    contact_accel(t + h2, qs, v3, p, ridx, m, a3, jac, sc, A)
+    for i in range(N_DOF):
+        qs[i] = q[i] + dt * v3[i]
+        vs[i] = qd[i] + dt * a3[i]
+    contact_accel(t + dt, qs, vs, p, ridx, m, a4, jac, sc, A)
+    h6 = dt / 6.0
+    for i in range(N_DOF):
+        q_out[i] = q[i] + h6 * (qd[i] + 2.0 * v2[i] + 2.0 * v3[i] + vs[i])
+        qd_out[i] = qd[i] + h6 * (a1[i] + 2.0 * a2[i] + 2.0 * a3[i] + a4[i])
+
+
+@njit(cache=True)
+def project_rest(t, q, qd, p, ridx, m, jac, sc, A):
+    """Put the persistent contacts back on gap = 0 and rate = 0 (removes RK4's drift)."""
+    winv = np.empty(N_DOF)
+    inverse_mass(p, winv)
+    g, rhs, x = sc[_GS], sc[_RHS], sc[_LAM]
+    for _ in range(2):   # Newton on the gaps; the drift is O(dt^5), one pass is plenty
+        phi(t, q, p, g)
+        phi_q(t, q, p, jac)
+        contact_matrix(jac, winv, ridx, m, A)
+        for i in range(m):
+            rhs[i] = -g[ridx[i]]
+        solve_regularised(A, rhs, m, x)
+        for d in range(N_DOF):
+            s = 0.0
+            for i in range(m):
+                s += jac[ridx[i], d] * x[i]
+            q[d] += winv[d] * s
+    phi_q(t, q, p, jac)
+    contact_matrix(jac, winv, ridx, m, A)
+    gap_rate(t, q, qd, p, g)
+    for i in range(m):
+        rhs[i] = -g[ridx[i]]
+    solve_regularised(A, rhs, m, x)
+    for d in range(N_DOF):
+        s = 0.0
+        for i in range(m):
+            s += jac[ridx[i], d] * x[i]
+        qd[d] += winv[d] * s
+
+
+@njit(cache=True)
+def log_event(t, k, kind, ev_t, ev_k, ev_kind, n_ev):
+    if n_ev < ev_t.shape[0]:
+        ev_t[n_ev] = t
+        ev_k[n_ev] = k
+        ev_kind[n_ev] = kind
+    return n_ev + 1
+
+
+@njit(cache=True)
+def contact_update(t, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind, n_ev):
+    """At an event: impulses for the contacts that take part, then the persistent set.
+
+    Contacts closer than T_GAP take part. Approaching ones get Newton's law
+    (restitution e, or 0 for speeds below T_VREST: those come to rest); all
+    are solved together. Then the contacts that are closed and still get
+    the accelerations' LCP ``w = A lam + (J a + bias) >= 0, lam >= 0, w.lam = 0``;
+    those with a force stay (or become) persistent, the others are released.
+    Returns ``(n_ev, m)`` with m the number of persistent contacts.
+    """
+    g, v, bias = sc[_GS], sc[_VB], sc[_BIAS]
+    phi(t, q, p, g)
+    gap_rate(t, q, qd, p, v)
+    phi_q(t, q, p, jac)
+    winv = np.empty(N_DOF)
+    inverse_mass(p, winv)
+    near = np.empty(N_CONTACT, np.int64)
+    m = 0
+    for k in range(N_CONTACT):
+        if g[k] < tol[T_GAP] or rest[k]:
+            near[m] = k
+            m += 1
+    if m == 0:
+        for k in range(N_CONTACT):
+            if rest[k]:
+                rest[k] = 0
+        return n_ev, 0
+    vrest = tol[T_VREST]
+    tiny = 1e-3 * vrest        # normal speeds below this are round-off
+    b = np.empty(m)
+    lam = np.empty(m)
+    approaching = False
+    for i in range(m):
+        k = near[i]
+        e = p[E_SLOT] if k < N_WALL_CONTACT else p[E_GROUND_SLOT]
+        b[i] = v[k] + (e * v[k] if v[k] < -vrest else 0.0)
+        if v[k] < -tiny:
+            approaching = True
+    contact_matrix(jac, winv, near, m, A)
+    if approaching:
+        solve_lcp(A, b, m, lam)
+        for d in range(N_DOF):
+            s = 0.0
+            for i in range(m):
+                s += jac[near[i], d] * lam[i]
+            qd[d] += winv[d] * s
+        for i in range(m):
+            if lam[i] * A[i, i] > tiny:
+                n_ev = log_event(t, near[i], IMPULSE, ev_t, ev_k, ev_kind, n_ev)
+        gap_rate(t, q, qd, p, v)
+    # Contacts closed and (now) at rest: which of them carry a force?
+    cand = np.empty(m, np.int64)
+    c = 0
+    for i in range(m):
+        if abs(v[near[i]]) < vrest:
+            cand[c] = near[i]
+            c += 1
+    a = np.empty(N_DOF)
+    accel(t, q, qd, p, a)
+    newrest = np.zeros(N_CONTACT, np.int64)
+    if c > 0:
+        gap_bias(t, q, qd, p, bias)
+        contact_matrix(jac, winv, cand, c, A)
+        w0 = np.empty(c)
+        for i in range(c):
+            k = cand[i]
+            s = bias[k]
+            for d in range(N_DOF):
+                s += jac[k, d] * a[d]
+            w0[i] = s
+        solve_lcp(A, w0, c, lam)
+        for i in range(c):
+            if lam[i] > 0.0:
+                newrest[cand[i]] = 1
+    for k in range(N_CONTACT):
+        if newrest[k] and not rest[k]:
+            n_ev = log_event(t, k, REST, ev_t, ev_k, ev_kind, n_ev)
+        elif rest[k] and not newrest[k]:
+            n_ev = log_event(t, k, RELEASE, ev_t, ev_k, ev_kind, n_ev)
+        rest[k] = newrest[k]
+    m = rest_index(rest, ridx)
+    if m > 0:
+        project_rest(t, q, qd, p, ridx, m, jac, sc, A)
+    return n_ev, m
+
+
+@njit(cache=True)
+def event_value(kind, pos, ta, q, qd, s, p, tol, ridx, m, work, jac, sc, sn, A):
+    """Re-step from (ta, q, qd) to time s; the event function there.
+
+    kind 0: gap ``pos`` plus T_EVENT / 2; kind 1: force of persistent contact
+    ``ridx[pos]``. The state at s is left in sn[_QS], sn[_QDS].
+    """
+    qs, qds = sn[_QS], sn[_QDS]
+    rk4_contact(ta, q, qd, s - ta, p, qs, qds, work, ridx, m, jac, sc, A)
+    if kind == 0:
+        g = sc[_GS]
+        phi(s, qs, p, g)
+        return g[pos] + 0.5 * tol[T_EVENT]
+    contact_accel(s, qs, qds, p, ridx, m, sn[_AF], jac, sc, A)
+    return sc[_LAM, pos]
+
+
+@njit(cache=True)
+def locate(kind, pos, ta, q, qd, tl, fl, tr, fr, p, tol, ridx, m, work, jac, sc, sn, A):
+    """Illinois iteration for the root of the event function in [tl, tr] (fl >= 0 > fr).
+
+    Returns (tl, tr) with tr - tl near machine precision, f(tl) >= 0 > f(tr).
+    """
+    side = 0
+    ttol = 4.0 * 2.220446049250313e-16 * max(abs(tr), tr - ta)
+    for _ in range(200):
+        if tr - tl <= ttol:
+            break
+        s = (tl * fr - tr * fl) / (fr - fl)
+        if not (tl < s < tr):
+            s = 0.5 * (tl + tr)
+        f = event_value(kind, pos, ta, q, qd, s, p, tol, ridx, m, work, jac, sc, sn, A)
+        if f >= 0.0:
+            tl, fl = s, f
+            if side == -1:
+                fr *= 0.5
+            side = -1
+        else:
+            tr, fr = s, f
+            if side == 1:
+                fl *= 0.5
+            side = 1
+    return tl, tr
+
+
+@njit(cache=True)
+def hermite_extrema(fa, fb, da, db, ext):
+    """Interior stationary points s in (0, 1) of the cubic with values fa, fb and slopes da, db.
+
+    Writes up to two of them into ext (ascending); returns their number.
+    """
+    a3 = 2.0 * fa + da - 2.0 * fb + db
+    a2 = -3.0 * fa - 2.0 * da + 3.0 * fb - db
+    # H'(s) = 3 a3 s^2 + 2 a2 s + da
+    A_, B_, C_ = 3.0 * a3, 2.0 * a2, da
+    n = 0
+    if abs(A_) < 1e-300:
+        if abs(B_) > 1e-300:
+            s = -C_ / B_
+            if 0.0 < s < 1.0:
+                ext[0] = s
+                n = 1
+        return n
+    disc = B_ * B_ - 4.0 * A_ * C_
+    if disc < 0.0:
+        return 0
+    r = math.sqrt(disc)
+    qq = -0.5 * (B_ + math.copysign(r, B_))
+    s1 = qq / A_
+    s2 = C_ / qq if qq != 0.0 else s1
+    lo, hi = min(s1, s2), max(s1, s2)
+    if 0.0 < lo < 1.0:
+        ext[n] = lo
+        n += 1
+    if 0.0 < hi < 1.0 and hi != lo:
+        ext[n] = hi
+        n += 1
+    return n
+
+
+@njit(cache=True)
+def hermite(fa, fb, da, db, s):
+    s2 = s * s
+    s3 = s2 * s
+    return ((2 * s3 - 3 * s2 + 1) * fa + (s3 - 2 * s2 + s) * da
+            + (-2 * s3 + 3 * s2) * fb + (s3 - s2) * db)
+
+
+@njit(cache=True)
+def left_bracket(k, ta, h, fa, fb, da, db, sr, q, qd, p, tol, ridx, m, work, jac, sc, sn, A):
+    """Left end of the bracket of gap k's first crossing before ta + sr h.
+
+    The step's start, or, for a gap that is opening at the start (just after a
+    bounce, fa near zero), the hump of the cubic through its values and rates
+    at both ends, when the RK4 state there is further from contact.
+    """
+    tl, fl = ta, fa
+    if da > 0.0:
+        ext = np.empty(2)
+        nx = hermite_extrema(fa, fb, da, db, ext)
+        for j in range(nx):
+            if ext[j] < sr and hermite(fa, fb, da, db, ext[j]) > fa:
+                f = event_value(0, k, ta, q, qd, ta + ext[j] * h, p, tol, ridx, m, work, jac, sc, sn, A)
+                if f > fl:
+                    tl, fl = ta + ext[j] * h, f
+                break
+    return tl, fl
+
+
+@njit(cache=True)
+def first_crossing(ta, tb, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A):
+    """The earliest time in (ta, tb] where a free gap crosses -T_EVENT/2, or -1.
+
+    Uses the trial state at tb in sn[_QB], sn[_QDB] and its gaps sc[_GB]; the
+    gaps at ta are sc[_GA]. On success the state just before the crossing
+    (every free gap >= -T_EVENT/2) is left in sn[_QS], sn[_QDS] and the
+    returned value is its time; returns ta when a contact is already closing
+    at ta with nothing to separate it (a touch).
+    """
+    h = tb - ta
+    half = 0.5 * tol[T_EVENT]
+    ga, gb, va, vb = sc[_GA], sc[_GB], sc[_VA], sc[_VB]
+    speed = tol[T_BOXV]
+    for d in range(N_DOF):
+        speed += abs(qd[d]) * tol[T_SPEED + d] + abs(sn[_QDB, d]) * tol[T_SPEED + d]
+    band = 1.5 * h * speed + tol[T_GAP]
+    near = False
+    for k in range(N_CONTACT):
+        if not rest[k] and min(ga[k], gb[k]) + half < band:
+            near = True
+            break
+    if not near:
+        return -1.0
+    gap_rate(ta, q, qd, p, va)
+    gap_rate(tb, sn[_QB], sn[_QDB], p, vb)
+    ext = np.empty(2)
+    best_t = -1.0
+    best_l = 0.0
+    best_k = -1
+    t_hi = tb
+    for k in range(N_CONTACT):
+        if rest[k]:
+            continue
+        fa, fb = ga[k] + half, gb[k] + half
+        if min(fa, fb) >= band:
+            continue
+        da, db = h * va[k], h * vb[k]
+        # right end of the bracket: the step's end, or the cubic's negative dip
+        nx = hermite_extrema(fa, fb, da, db, ext)
+        sr = -1.0
+        fr = 0.0
+        if fb < 0.0:
+            sr, fr = 1.0, fb
+        for j in range(nx):
+            if hermite(fa, fb, da, db, ext[j]) < 0.0 and (sr < 0.0 or ext[j] < sr):
+                sr = ext[j]
+                fr = event_value(0, k, ta, q, qd, ta + sr * h, p, tol, ridx, m, work, jac, sc, sn, A)
+                if fr >= 0.0:
+                    sr = 1.0 if fb < 0.0 else -1.0
+                    fr = fb
+                break
+        if sr < 0.0:
+            continue
+        tr = ta + sr * h
+        if best_k >= 0 and tr > t_hi:
+            # a later bracket: only matters if this gap is already negative at the best time
+            continue
+        tl, fl = left_bracket(k, ta, h, fa, fb, da, db, sr, q, qd, p, tol, ridx, m, work, jac, sc, sn, A)
+        if fl <= 0.0:
+            return ta  # touching now, with no resolvable flight before the crossing
+        tl, tr = locate(0, k, ta, q, qd, tl, fl, tr, fr, p, tol, ridx, m, work, jac, sc, sn, A)
+        if best_k < 0 or tl < best_t:
+            best_t, best_l, best_k = tl, tl, k
+            t_hi = tr
+    if best_k < 0:
+        return -1.0
+    # The state just before the first crossing; any other gap already below
+    # zero there crossed earlier: locate it within [ta, best].
+    for _ in range(N_CONTACT):
+        event_value(0, best_k, ta, q, qd, best_l, p, tol, ridx, m, work, jac, sc, sn, A)
+        g = sc[_GS]
+        worst = -1
+        for k in range(N_CONTACT):
+            if not rest[k] and g[k] + half < 0.0 and (worst < 0 or g[k] < g[worst]):
+                worst = k
+        if worst < 0:
+            return best_l
+        fr = g[worst] + half
+        fa, fb = ga[worst] + half, gb[worst] + half
+        sr = (best_l - ta) / h
+        tl, fl = left_bracket(worst, ta, h, fa, fb, h * va[worst], h * vb[worst], sr,
+                              q, qd, p, tol, ridx, m, work, jac, sc, sn, A)
+        if fl <= 0.0:
+            return ta
+        tl, tr = locate(0, worst, ta, q, qd, tl, fl, best_l, fr, p, tol, ridx, m, work, jac, sc, sn, A)
+        best_l, best_k = tl, worst
+    return best_l
+
+
+@njit(cache=True)
+def first_release(ta, tb, q, qd, p, tol, ridx, m, work, jac, sc, sn, A):
+    """When the earliest persistent contact's force turns negative in (ta, tb], or -1.
+
+    Returns the time just after the sign change (the force is negative there),
+    or ta when a force already pulls at ta.
+    """
+    contact_accel(tb, sn[_QB], sn[_QDB], p, ridx, m, sn[_AF], jac, sc, A)
+    lam_b = sc[_LAM, :m].copy()
+    if lam_b.min() >= 0.0:
+        return -1.0
+    contact_accel(ta, q, qd, p, ridx, m, sn[_AF], jac, sc, A)
+    lam_a = sc[_LAM, :m].copy()
+    best = -1.0
+    for i in range(m):
+        if lam_b[i] >= 0.0:
+            continue
+        if lam_a[i] < 0.0:
+            return ta
+        tl, tr = locate(1, i, ta, q, qd, ta, lam_a[i], tb, lam_b[i], p, tol, ridx, m, work, jac, sc, sn, A)
+        if best < 0.0 or tr < best:
+            best = tr
+    return best
+
+
+@njit(cache=True)
+def advance(ta, tb, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A, ev_t, ev_k, ev_kind, n_ev):
+    """Take the state from ta to tb through every event in between.
+
+    On entry sc[_GA] holds the gaps at (ta, q); on return those at (tb, q).
+    Returns ``(n_ev, m, status)``.
+    """
+    target = tb
+    releasing = False
+    for _ in range(MAX_EVENTS):
+        qb, qdb = sn[_QB], sn[_QDB]
+        rk4_contact(ta, q, qd, target - ta, p, qb, qdb, work, ridx, m, jac, sc, A)
+        if m > 0 and not releasing:
+            tr = first_release(ta, target, q, qd, p, tol, ridx, m, work, jac, sc, sn, A)
+            if tr == ta:       # a persistent contact already pulls: let it go now
+                n_ev, m = contact_update(ta, q, qd, p, tol, rest, ridx, jac, sc, A,
+                                         ev_t, ev_k, ev_kind, n_ev)
+                phi(ta, q, p, sc[_GA])
+                continue
+            if tr > ta:        # step to where it lets go (gaps are checked on the way)
+                target = tr
+                releasing = True
+                continue
+        phi(target, qb, p, sc[_GB])
+        te = first_crossing(ta, target, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A)
+        if te >= 0.0:
+            if te > ta:
+                q[:] = sn[_QS]
+                qd[:] = sn[_QDS]
+                ta = te
+            n_ev, m = contact_update(ta, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind, n_ev)
+            phi(ta, q, p, sc[_GA])
+            target = tb
+            releasing = False
+            continue
+        q[:] = qb
+        qd[:] = qdb
+        ta = target
+        if m > 0:
+            project_rest(ta, q, qd, p, ridx, m, jac, sc, A)
+            phi(ta, q, p, sc[_GA])
+        else:
+            sc[_GA, :] = sc[_GB]
+        if releasing:          # arrived where a persistent contact lets go
+            n_ev, m = contact_update(ta, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind, n_ev)
+            phi(ta, q, p, sc[_GA])
+            target = tb
+            releasing = False
+            continue
+        if ta == tb:
+            return n_ev, m, DONE
+    return n_ev, m, STALLED
+
+
+@njit(cache=True)
+def integrate_exact(q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every,
+                    rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, ev_kind, n_ev):
+    """Method "exact": like :func:`integrate`, with every contact event located.
+
+    rest: (N_CONTACT,) 0/1 persistent contacts, carried between calls. tol: the
+    T_* slots. ev_*: the event log (time, contact, IMPULSE/REST/RELEASE).
+    Returns ``(step reached, n_rec, n_ev, status)``.
+    """
+    work = np.empty((8, N_DOF))
+    jac = np.empty((N_CONTACT, N_DOF))
+    sc = np.zeros((SC, N_CONTACT))
+    sn = np.zeros((SN, N_DOF))
+    A = np.empty((N_CONTACT, N_CONTACT))
+    ridx = np.empty(N_CONTACT, np.int64)
+    box = np.empty(6)
+    m = rest_index(rest, ridx)
+    if i_begin == 0:
+        n_ev, m = contact_update(t0, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind, n_ev)
+        record(t0, q, qd, p, n_rec, rec_t, rec_q, rec_qd, rec_energy, box)
+        n_rec += 1
+    phi(t0 + i_begin * dt, q, p, sc[_GA])
+    q0, qd0, rest0 = q.copy(), qd.copy(), rest.copy()
+    for i in range(i_begin, i_end):
+        t = t0 + i * dt
+        t_next = t0 + (i + 1) * dt
+        q0[:] = q
+        qd0[:] = qd
+        rest0[:] = rest
+        n0 = n_ev
+        n_ev, m, status = advance(t, t_next, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A,
+                                  ev_t, ev_k, ev_kind, n_ev)
+        if n_ev > ev_t.shape[0]:   # the log overflowed: undo the step, the caller grows it
+            q[:] = q0
+            qd[:] = qd0
+            rest[:] = rest0
+            return i, n_rec, n0, IMPACT_LOG_FULL
+        for d in range(N_DOF):
+            if not (math.isfinite(q[d]) and math.isfinite(qd[d])):
+                return i + 1, n_rec, n_ev, NONFINITE
+        if status != DONE:
+            return i, n_rec, n_ev, status
+        if (i + 1) % record_every == 0 or i + 1 == n_total:
+            record(t_next, q, qd, p, n_rec, rec_t, rec_q, rec_qd, rec_energy, box)
+            n_rec += 1
+    return i_end, n_rec, n_ev, DONE

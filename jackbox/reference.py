@@ -24,6 +24,7 @@ import sympy as sp
 from codegen.model import Model, derive
 
 from .api import Run, finish, prepare
+from .errors import SimulationError
 from .scene import Scene, load_scene
 from .trajectory import Trajectory
 
@@ -142,6 +143,8 @@ def simulate(scene: Scene | str, t_end: float | None = None, dt: float | None = 
              method: str = "naive", progress: bool = False, log=None) -> Trajectory:
     """Same signature and result as :func:`jackbox.simulate`, computed slowly."""
     run: Run = prepare(load_scene(scene), t_end, dt, record_every, params, method)
+    if run.method != "naive":
+        raise SimulationError(f"the reference implements method 'naive' only, not {run.method!r}")
     fn = functions(run.scene)
     p, dt = run.p, run.dt
     n_wall = fn.model.n_wall_contacts

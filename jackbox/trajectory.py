@@ -20,6 +20,9 @@ from .fileio import write_atomic
 from .scene import COORDS
 
 NPZ_KEYS = ("t", "q", "qd", "energy", "impact_t", "impact_constraint", "constraint_names", "scene", "meta")
+#: keys beyond SCENES.md, written by jackbox and optional when reading
+EXTRA_KEYS = ("contact_t", "contact_constraint", "contact_event")
+REST, RELEASE = 1, 2
 
 
 @dataclass
@@ -35,6 +38,11 @@ class Trajectory:
     constraint_names: tuple[str, ...]
     scene: str = ""                 #: the scene file's text
     meta: dict = field(default_factory=dict)
+    #: (R,) times of contact mode changes (method "exact"): a contact came to
+    #: rest (persistent, gap held at zero) or was released
+    contact_t: np.ndarray = field(default_factory=lambda: np.empty(0))
+    contact_constraint: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
+    contact_event: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))  #: 1 rest, 2 release
 
     coords = COORDS
 
@@ -46,6 +54,18 @@ class Trajectory:
         out["constraint"] = self.impact_constraint
         names = np.asarray(self.constraint_names, dtype="U16")
         out["name"] = names[self.impact_constraint] if len(names) else ""
+        return out
+
+    @property
+    def contact_changes(self) -> np.ndarray:
+        """Structured array of contact mode changes: ``t``, ``constraint``, ``name``, ``event`` ('rest'/'release')."""
+        out = np.empty(len(self.contact_t), dtype=[("t", float), ("constraint", int), ("name", "U16"),
+                                                   ("event", "U8")])
+        out["t"] = self.contact_t
+        out["constraint"] = self.contact_constraint
+        names = np.asarray(self.constraint_names, dtype="U16")
+        out["name"] = names[self.contact_constraint] if len(names) else ""
+        out["event"] = np.where(self.contact_event == REST, "rest", "release")
         return out
 
     def __len__(self) -> int:
@@ -63,6 +83,8 @@ class Trajectory:
             "impact_t": self.impact_t, "impact_constraint": self.impact_constraint,
             "constraint_names": np.asarray(self.constraint_names, dtype=str),
             "scene": np.asarray(self.scene), "meta": np.asarray(json.dumps(self.meta, sort_keys=True)),
+            "contact_t": self.contact_t, "contact_constraint": self.contact_constraint,
+            "contact_event": self.contact_event,
         }
         return write_atomic(path, lambda fh: np.savez_compressed(fh, **arrays))
 
@@ -79,7 +101,7 @@ class Trajectory:
             missing = [k for k in NPZ_KEYS if k not in data.files]
             if missing:
                 raise JackboxError(f"{path}: not a jackbox trajectory, missing {', '.join(missing)}")
-            arrays = {k: data[k] for k in NPZ_KEYS}
+            arrays = {k: data[k] for k in NPZ_KEYS + EXTRA_KEYS if k in data.files}
         try:
             meta = json.loads(str(arrays["meta"]))
         except json.JSONDecodeError as exc:
@@ -89,4 +111,6 @@ class Trajectory:
             impact_t=arrays["impact_t"], impact_constraint=arrays["impact_constraint"].astype(np.int64),
             constraint_names=tuple(str(s) for s in arrays["constraint_names"]),
             scene=str(arrays["scene"]), meta=meta,
+            **{k: arrays[k].astype(np.int64) if k != "contact_t" else arrays[k]
+               for k in EXTRA_KEYS if k in arrays},
         )

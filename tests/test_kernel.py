@@ -39,8 +39,9 @@ def assert_same_trajectory(got, want, atol_q, atol_qd):
 @pytest.mark.parametrize("name", list(HORIZONS))
 def test_kernel_matches_reference_step_by_step(name, all_scenes):
     scene = all_scenes[name]
-    got = jackbox.simulate(scene, t_end=HORIZONS[name])
-    want = reference.simulate(scene, t_end=HORIZONS[name])
+    # the reference implements the naive method step for step
+    got = jackbox.simulate(scene, t_end=HORIZONS[name], method="naive")
+    want = reference.simulate(scene, t_end=HORIZONS[name], method="naive")
     assert len(want.impact_t) >= 2, "the horizon should include impacts"
     # Same float operations in another order (cse, LLVM): round-off of 1e-15 per
     # step, amplified by a few impacts; 1e-9 m and 1e-8 m/s leave room for that
@@ -52,18 +53,22 @@ def test_kernel_matches_reference_step_by_step(name, all_scenes):
 def test_kernel_matches_reference_through_many_simultaneous_impacts():
     # drop with e = 0.6: the box ends up chattering on the ground (hundreds of
     # impulses, often two corners at once), which also grows the impact log
-    got = jackbox.simulate("drop", t_end=2.1, params={"e": 0.6, "e_ground": 0.6})
-    want = reference.simulate("drop", t_end=2.1, params={"e": 0.6, "e_ground": 0.6})
+    got = jackbox.simulate("drop", t_end=2.1, params={"e": 0.6, "e_ground": 0.6}, method="naive")
+    want = reference.simulate("drop", t_end=2.1, params={"e": 0.6, "e_ground": 0.6}, method="naive")
     assert len(got.impact_t) > 600
     assert_same_trajectory(got, want, atol_q=1e-9, atol_qd=1e-8)
 
 
-def test_log_growth_and_chunking_do_not_change_the_result(monkeypatch):
-    whole = jackbox.simulate("drop", t_end=3.0, params={"e": 0.6, "e_ground": 0.6})
-    assert len(whole.impact_t) > 2048          # the log grew at least twice
+@pytest.mark.parametrize("method", api.METHODS)
+def test_log_growth_and_chunking_do_not_change_the_result(method, monkeypatch):
+    params = {"e": 0.6, "e_ground": 0.6}
+    whole = jackbox.simulate("drop", t_end=3.0, params=params, method=method)
     monkeypatch.setattr(api, "CHUNK", 37)      # many kernel calls, resumed mid-run
-    pieces = jackbox.simulate("drop", t_end=3.0, params={"e": 0.6, "e_ground": 0.6})
-    for key in ("t", "q", "qd", "energy", "impact_t", "impact_constraint"):
+    monkeypatch.setattr(api, "LOG_SIZE", 8)    # and a log that must grow many times
+    pieces = jackbox.simulate("drop", t_end=3.0, params=params, method=method)
+    # more events than the smallest log (8 per contact): it grew at least once
+    assert len(whole.impact_t) + len(whole.contact_t) > 8 * len(whole.constraint_names)
+    for key in ("t", "q", "qd", "energy", "impact_t", "impact_constraint", "contact_t", "contact_event"):
         np.testing.assert_array_equal(getattr(whole, key), getattr(pieces, key), err_msg=key)
 
 
@@ -124,12 +129,16 @@ def test_unknown_param_and_bad_arguments_are_refused():
         jackbox.simulate("drop", record_every=0)
 
 
-def test_non_finite_state_stops_with_a_clear_error(tmp_path):
-    text = (jackbox.builtin_scenes()["drop"].read_text()
-            .replace("[impact]", '[forces]\nx_jack = "exp(1000*t)"\n\n[impact]'))
+@pytest.mark.parametrize("method", api.METHODS)
+def test_non_finite_state_stops_with_a_clear_error(method, tmp_path):
+    # with no ground, a torque exp(1000 t) spins the jack (which stays clear of
+    # the walls until t = 0.8 s) until its rate overflows (exp(709.8) is the
+    # largest double)
+    text = (jackbox.builtin_scenes()["drop"].read_text().replace("ground = true", "ground = false")
+            .replace("[impact]", '[forces]\ntheta_jack = "exp(1000*t)"\n\n[impact]'))
     scene = jackbox.load_scene(write_scene(tmp_path, text))
     with pytest.raises(jackbox.SimulationError, match=r"non-finite at step \d+ \(t = 0\.7"):
-        jackbox.simulate(scene, t_end=1.0)
+        jackbox.simulate(scene, t_end=1.0, method=method)
 
 
 def test_kernel_runs_without_jit(tmp_path):
