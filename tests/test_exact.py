@@ -1,0 +1,182 @@
+"""The exact method against closed-form answers: located impacts, simultaneous
+contacts, Zeno accumulation into resting contact, and lift-off.
+
+Every scene here has a box that is held still or moved by a known formula and
+a jack whose flight between impacts is a parabola, so the times and states to
+expect follow from school physics, not from the code under test.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import jackbox
+from jackbox.scene import contact_gaps
+
+from .conftest import write_scene
+
+G = 9.81
+L = 1.0          # inner half-width of every box below
+A_JACK = 0.25    # half-size of the square jack
+
+#: A box held still by a hand; a square jack starts at rest, flat, at height y0.
+STILL = """
+name = "still"
+[params]
+y0 = 0.0
+[box]
+inner_half_width = 1.0
+wall_thickness = 0.1
+mass = 4.0
+motion = "prescribed"
+x = "0"
+y = "0"
+theta = "0"
+[jack]
+shape = "square"
+half_size = 0.25
+mass = 1.0
+[world]
+gravity = 9.81
+[impact]
+restitution = 0.5
+[initial]
+q = [0, 0, 0, 0, 0, 0]
+qd = [0, 0, 0, 0, 0, 0]
+[run]
+t_end = 2.0
+dt = 1e-3
+"""
+
+#: The same box moved up and down by y = A (1 - cos(w t)); the jack starts resting on its floor.
+SHAKEN_FLOOR = STILL.replace('y = "0"', 'y = "A*(1 - cos(w*t))"').replace(
+    "[params]\ny0 = 0.0", "[params]\nA = 0.05\nw = 20.0").replace(
+    "q = [0, 0, 0, 0, 0, 0]", "q = [0, 0, 0, 0, -0.75, 0]").replace('name = "still"', 'name = "floor"')
+
+
+@pytest.fixture(scope="module")
+def still(tmp_path_factory):
+    return jackbox.load_scene(write_scene(tmp_path_factory.mktemp("still"), STILL))
+
+
+@pytest.fixture(scope="module")
+def shaken_floor(tmp_path_factory):
+    return jackbox.load_scene(write_scene(tmp_path_factory.mktemp("floor"), SHAKEN_FLOOR))
+
+
+def jack_gaps(traj, scene):
+    return np.array([contact_gaps(q, scene.points, L, 0.1, False) for q in traj.q])
+
+
+def test_first_impact_is_located_to_round_off_even_with_a_coarse_step(still):
+    # Free fall from the centre: the jack's bottom face (0.25 below its centre)
+    # meets the floor (1.0 below the box's centre) after sqrt(2 h / g), h = 0.75.
+    # A parabola is integrated exactly by RK4, so only the root finding can err.
+    t_hit = math.sqrt(2 * (L - A_JACK) / G)
+    for dt in (1e-3, 0.05):
+        traj = jackbox.simulate(still, t_end=0.5, dt=dt)
+        assert traj.impact_t[0] == pytest.approx(t_hit, abs=1e-12)
+        # naive: the impulse comes at the end of the step that crossed
+        naive = jackbox.simulate(still, t_end=0.5, dt=dt, method="naive")
+        assert naive.impact_t[0] - t_hit == pytest.approx(dt * math.ceil(t_hit / dt) - t_hit, abs=1e-12)
+
+
+def test_square_landing_flat_hits_with_both_corners_and_leaves_without_spin(still):
+    # Both bottom corners touch at the same instant: one LCP gives them equal
+    # impulses, so the jack rebounds at e v with exactly zero spin.
+    traj = jackbox.simulate(still, t_end=0.5, params={"e": 1.0})
+    t_hit = math.sqrt(2 * (L - A_JACK) / G)
+    first = traj.impacts[traj.impact_t < t_hit + 1e-9]
+    assert sorted(first["name"]) == ["bottom:2", "bottom:3"]
+    assert np.all(traj.qd[:, 5] == 0.0) and np.all(traj.q[:, 5] == 0.0)
+    # elastic: the energy is that of the start to round-off of the energy
+    # exchanged (m g h, about 7.4 J; the start's is 0)
+    assert np.abs(traj.energy - traj.energy[0]).max() < 1e-13 * G * (L - A_JACK)
+
+
+def test_zeno_bounces_accumulate_into_rest_at_the_analytic_time(still):
+    # Bounce k lasts 2 e^k v0 / g, so the bounces end at t0 (1 + e) / (1 - e);
+    # the contact must become persistent there (within 1e-6 s), then the jack
+    # lies on the floor exactly: gap 0 to round-off, no motion, no more impulses.
+    e = 0.5
+    traj = jackbox.simulate(still, t_end=2.0, params={"e": e})
+    t0 = math.sqrt(2 * (L - A_JACK) / G)
+    t_rest = t0 * (1 + e) / (1 - e)
+    changes = traj.contact_changes
+    assert list(changes["event"]) == ["rest", "rest"]
+    assert sorted(changes["name"]) == ["bottom:2", "bottom:3"]
+    assert abs(changes["t"][0] - t_rest) < 1e-6
+    assert traj.impact_t.max() <= changes["t"][0]
+    after = traj.t > t_rest + 1e-3
+    assert np.all(np.abs(traj.q[after, 4] - (A_JACK - L)) < 1e-15)
+    assert np.all(traj.qd[after] == 0.0)
+    assert np.ptp(traj.energy[after]) == 0.0
+    # every bounce before that left at e times the speed it came in with
+    v_in = G * t0 * e ** np.arange(5)
+    heights = (v_in * e) ** 2 / (2 * G)
+    apex = [traj.q[(traj.t > a) & (traj.t < b), 4].max() - (A_JACK - L)
+            for a, b in zip(t0 + np.r_[0, np.cumsum(2 * v_in[:-1] * e / G)], t0 + np.cumsum(2 * v_in * e / G))]
+    np.testing.assert_allclose(apex, heights[:5], rtol=2e-3)   # samples every 1 ms miss the apex slightly
+
+
+def test_jack_lifts_off_when_the_floor_falls_faster_than_g_and_lands_again(shaken_floor):
+    # The floor's acceleration is A w^2 cos(w t): the normal force m (g + A w^2 cos w t)
+    # first vanishes at cos(w t) = -g / (A w^2).
+    A, w = 0.05, 20.0
+    traj = jackbox.simulate(shaken_floor, t_end=0.5)
+    t_lift = math.acos(-G / (A * w * w)) / w
+    changes = traj.contact_changes
+    assert list(changes["event"][:4]) == ["rest", "rest", "release", "release"]
+    assert changes["t"][0] == 0.0
+    assert changes["t"][2] == pytest.approx(t_lift, abs=1e-9)
+    # before lift-off the jack rides the floor exactly; afterwards it lands again
+    riding = traj.t < t_lift - 1e-3
+    floor = A * (1 - np.cos(w * traj.t)) - L + A_JACK
+    assert np.abs(traj.q[riding, 4] - floor[riding]).max() < 1e-12
+    assert len(traj.impact_t) and traj.impact_t[0] > t_lift
+    # and never sinks into the moving floor
+    assert (traj.q[:, 4] - floor).min() > -1e-12
+
+
+def test_corner_hit_bounces_off_both_walls_at_once(still):
+    # No gravity: the jack's corner (a, a) flies along the diagonal into the
+    # box's corner and meets both walls at the same instant. Both contacts take
+    # an impulse; with e = 1 the velocity reverses, with no spin.
+    v = 2.0
+    scene = still.with_overrides({"gravity": "0.0", "initial.qd": "[0, 0, 0, 2.0, 2.0, 0]",
+                                  "restitution": "1.0"})
+    traj = jackbox.simulate(scene, t_end=0.6)
+    t_hit = (L - A_JACK) / v
+    first = traj.impacts[np.abs(traj.impact_t - t_hit) < 1e-12]
+    assert sorted(first["name"]) == ["right:0", "top:0"], traj.impacts[:4]   # corner (+a, +a)
+    after = traj.t > t_hit + 1e-6
+    np.testing.assert_allclose(traj.qd[after][0, 3:5], [-v, -v], rtol=1e-13)
+    assert np.all(traj.qd[:, 5] == 0.0)
+
+
+def test_inelastic_drop_settles_with_the_box_resting_on_the_ground():
+    # drop with e = 0.6: the box rocks on its corners, the bounces accumulate
+    # and it comes to rest flat on the ground (y_box = L + w exactly, no tilt),
+    # with the jack resting on its floor. Nothing sinks, nothing chatters: no
+    # impulse after the last contact came to rest, and the energy is constant.
+    traj = jackbox.simulate("drop", params={"e": 0.6, "e_ground": 0.6})
+    changes = traj.contact_changes
+    resting = {}
+    for name, event in zip(changes["name"], changes["event"]):
+        resting[name] = event == "rest"
+    # the box's two lower corners on the ground, two corners of the jack (turned
+    # by pi by then, so its corners 0 and 1 are at the bottom) on the box's floor
+    assert {n for n, r in resting.items() if r} == {"ground:2", "ground:3", "bottom:0", "bottom:1"}, resting
+    settled = changes["t"].max()
+    assert settled < 4.5 and traj.impact_t.max() <= settled
+    after = traj.t > settled
+    assert np.abs(traj.q[after, 1] - 1.1).max() < 1e-14          # box on the ground
+    assert np.abs(traj.q[after, 2]).max() < 1e-14                # flat
+    assert np.abs(traj.qd[after][:, [1, 2, 4, 5]]).max() < 1e-13  # only sliding is left
+    assert np.ptp(traj.energy[after]) < 1e-12 * traj.energy[0]
+    # it never went through the ground
+    corners = np.array([contact_gaps(q, np.zeros((0, 2)), L, 0.1, True) for q in traj.q])
+    assert corners.min() > -1e-12
