@@ -620,6 +620,24 @@ def hermite(fa, fb, da, db, s):
 
 
 @njit(cache=True)
+def step_reach(qd_a, qd_b, h, tol):
+    """How close to contact a gap must come, at one end of a step of length h, to need a look.
+
+    A gap positive at both ends can only dip below zero inside the step if one
+    end is within half the step's travel of contact. The travel is bounded by
+    h times the larger of the two ends' speed bounds (each |qd_i| times the
+    most a unit rate can move any gap, plus the prescribed box's speed); the
+    band is twice the half, for the speed's change within the step.
+    """
+    sa = tol[T_BOXV]
+    sb = tol[T_BOXV]
+    for d in range(N_DOF):
+        sa += abs(qd_a[d]) * tol[T_SPEED + d]
+        sb += abs(qd_b[d]) * tol[T_SPEED + d]
+    return h * max(sa, sb) + tol[T_GAP]
+
+
+@njit(cache=True)
 def left_bracket(k, ta, h, fa, fb, da, db, sr, q, qd, p, tol, ridx, m, work, jac, sc, sn, A):
     """Left end of the bracket of gap k's first crossing before ta + sr h.
 
@@ -653,10 +671,7 @@ def first_crossing(ta, tb, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A):
     h = tb - ta
     half = 0.5 * tol[T_EVENT]
     ga, gb, va, vb = sc[_GA], sc[_GB], sc[_VA], sc[_VB]
-    speed = tol[T_BOXV]
-    for d in range(N_DOF):
-        speed += abs(qd[d]) * tol[T_SPEED + d] + abs(sn[_QDB, d]) * tol[T_SPEED + d]
-    band = 1.5 * h * speed + tol[T_GAP]
+    band = step_reach(qd, sn[_QDB], h, tol)
     near = False
     for k in range(N_CONTACT):
         if not rest[k] and min(ga[k], gb[k]) + half < band:
@@ -756,17 +771,20 @@ def first_release(ta, tb, q, qd, p, tol, ridx, m, work, jac, sc, sn, A):
 
 
 @njit(cache=True)
-def advance(ta, tb, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A, ev_t, ev_k, ev_kind, n_ev):
+def advance(ta, tb, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A, ev_t, ev_k, ev_kind, n_ev,
+            trial):
     """Take the state from ta to tb through every event in between.
 
     On entry sc[_GA] holds the gaps at (ta, q); on return those at (tb, q).
-    Returns ``(n_ev, m, status)``.
+    trial: the RK4 step from ta to tb and its gaps are already in
+    sn[_QB], sn[_QDB] and sc[_GB]. Returns ``(n_ev, m, status)``.
     """
     target = tb
     releasing = False
+    qb, qdb = sn[_QB], sn[_QDB]
     for _ in range(MAX_EVENTS):
-        qb, qdb = sn[_QB], sn[_QDB]
-        rk4_contact(ta, q, qd, target - ta, p, qb, qdb, work, ridx, m, jac, sc, A)
+        if not trial:
+            rk4_contact(ta, q, qd, target - ta, p, qb, qdb, work, ridx, m, jac, sc, A)
         if m > 0 and not releasing:
             tr = first_release(ta, target, q, qd, p, tol, ridx, m, work, jac, sc, sn, A)
             if tr == ta:       # a persistent contact already pulls: let it go now
@@ -778,7 +796,9 @@ def advance(ta, tb, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A, ev_t, ev
                 target = tr
                 releasing = True
                 continue
-        phi(target, qb, p, sc[_GB])
+        if not trial:
+            phi(target, qb, p, sc[_GB])
+        trial = False
         te = first_crossing(ta, target, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A)
         if te >= 0.0:
             if te > ta:
@@ -830,27 +850,49 @@ def integrate_exact(q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record
         n_ev, m = contact_update(t0, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind, n_ev)
         record(t0, q, qd, p, n_rec, rec_t, rec_q, rec_qd, rec_energy, box)
         n_rec += 1
-    phi(t0 + i_begin * dt, q, p, sc[_GA])
+    ga, gb = sc[_GA], sc[_GB]
+    qb, qdb = sn[_QB], sn[_QDB]
+    phi(t0 + i_begin * dt, q, p, ga)
     q0, qd0, rest0 = q.copy(), qd.copy(), rest.copy()
+    half = 0.5 * tol[T_EVENT]
     for i in range(i_begin, i_end):
         t = t0 + i * dt
         t_next = t0 + (i + 1) * dt
-        q0[:] = q
-        qd0[:] = qd
-        rest0[:] = rest
-        n0 = n_ev
-        n_ev, m, status = advance(t, t_next, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A,
-                                  ev_t, ev_k, ev_kind, n_ev)
-        if n_ev > ev_t.shape[0]:   # the log overflowed: undo the step, the caller grows it
-            q[:] = q0
-            qd[:] = qd0
-            rest[:] = rest0
-            return i, n_rec, n0, IMPACT_LOG_FULL
+        # Fast path: no persistent contact and every gap, at both ends of the
+        # step, further from contact than the step can move it.
+        quiet = False
+        if m == 0:
+            rk4_step(t, q, qd, dt, p, qb, qdb, work)
+            phi(t_next, qb, p, gb)
+            band = step_reach(qd, qdb, dt, tol)
+            quiet = True
+            for k in range(N_CONTACT):
+                if min(ga[k], gb[k]) + half < band:
+                    quiet = False
+                    break
+        if quiet:
+            for d in range(N_DOF):
+                q[d] = qb[d]
+                qd[d] = qdb[d]
+            for k in range(N_CONTACT):
+                ga[k] = gb[k]
+        else:
+            q0[:] = q
+            qd0[:] = qd
+            rest0[:] = rest
+            n0 = n_ev
+            n_ev, m, status = advance(t, t_next, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A,
+                                      ev_t, ev_k, ev_kind, n_ev, m == 0)
+            if n_ev > ev_t.shape[0]:   # the log overflowed: undo the step, the caller grows it
+                q[:] = q0
+                qd[:] = qd0
+                rest[:] = rest0
+                return i, n_rec, n0, IMPACT_LOG_FULL
+            if status != DONE:
+                return i, n_rec, n_ev, status
         for d in range(N_DOF):
             if not (math.isfinite(q[d]) and math.isfinite(qd[d])):
                 return i + 1, n_rec, n_ev, NONFINITE
-        if status != DONE:
-            return i, n_rec, n_ev, status
         if (i + 1) % record_every == 0 or i + 1 == n_total:
             record(t_next, q, qd, p, n_rec, rec_t, rec_q, rec_qd, rec_energy, box)
             n_rec += 1
