@@ -1,13 +1,17 @@
-"""The ``jackbox`` command: run scenes, regenerate their kernels, list them.
+"""The ``jackbox`` command: run scenes and see them, compare impact laws, regenerate
+kernels, list scenes.
 
-Mistakes that are the user's (a bad scene, a missing file, a bad ``--set``)
-print one ``jackbox: error: ...`` line and exit with status 2; nothing is
-written. A run that goes wrong (the state turns non-finite) exits with status 1.
+Mistakes that are the user's (a bad scene, a missing file, a bad ``--set`` or
+option value) print one ``jackbox: error: ...`` line and exit with status 2;
+nothing is written. A run that goes wrong (the state turns non-finite) exits
+with status 1. Pictures are made by :mod:`jackbox.plots` (Matplotlib) and
+:mod:`jackbox.animate` (Plotly), imported only when a command draws.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -17,12 +21,22 @@ from .errors import JackboxError, NonFiniteStateError
 
 EPILOG = """\
 examples:
-  jackbox run                          run the built-in scene 'shaken'
+  jackbox run                          run the built-in scene 'shaken': trajectory, time series, animation
   jackbox run drop --set restitution=0.6 --t-end 3
-  jackbox run my_scene.toml --out results/
+  jackbox run my_scene.toml --out results/ --no-plots
+  jackbox compare drop --restitution 1.0 0.6      elastic vs inelastic, one figure
+  jackbox animate runs/drop/trajectory.npz --speed 0.25
+  jackbox plot runs/drop/trajectory.npz          the time series of a saved run
   jackbox build                        regenerate generated/ for the built-in scenes
   jackbox scenes                       list the built-in scenes
 """
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, with its usage errors on one ``jackbox: error:`` line like every other mistake."""
+
+    def error(self, message: str):
+        self.exit(2, f"jackbox: error: {message} (see {self.prog} --help)\n")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -46,28 +60,83 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="jackbox", formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG,
         description="Simulate a jack bouncing in a box: scenes are compiled to Numba kernels.")
     parser.add_argument("--version", action="version", version=f"jackbox {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
-    run = sub.add_parser("run", help="simulate a scene and write its trajectory",
-                         description="Simulate a scene (default: shaken), print a summary and write "
-                                     "DIR/trajectory.npz (its keys: docs/scenes.md).")
+    from .api import METHODS
+
+    run = sub.add_parser("run", help="simulate a scene, write its trajectory and pictures",
+                         formatter_class=argparse.RawDescriptionHelpFormatter,
+                         description="Simulate a scene (default: shaken), print a summary and write, in DIR:\n"
+                                     "  trajectory.npz   the trajectory (its keys: docs/scenes.md)\n"
+                                     "  timeseries.png   positions, angles, energy, smallest gap, impulses\n"
+                                     "  animation.html   the motion, offline, Play/Pause and a time slider\n"
+                                     "(--no-plots writes the trajectory only).")
     run.add_argument("scene", nargs="?", default="shaken",
                      help="built-in scene name or path to a .toml scene file (default: shaken)")
-    run.add_argument("--t-end", type=float, metavar="T", help="simulated time in s (default: the scene's)")
-    run.add_argument("--dt", type=float, help="RK4 step in s (default: the scene's)")
-    run.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", dest="overrides",
-                     help="change a scene value: a [params] name, a key such as restitution or "
-                          "gravity, or section.key; repeatable")
+    _simulation_options(run, METHODS)
     run.add_argument("--record-every", type=int, default=1, metavar="K",
                      help="keep every K-th step in the output (default: 1)")
     run.add_argument("--out", type=Path, metavar="DIR",
                      help="output folder (default: runs/<scene name>)")
+    run.add_argument("--no-plots", action="store_true",
+                     help="write the trajectory only: no timeseries.png, no animation.html")
     run.add_argument("--quiet", "-q", action="store_true", help="no progress bar or summary")
     run.set_defaults(func=cmd_run)
+
+    compare = sub.add_parser(
+        "compare", help="run a scene under several restitutions and compare them in one figure",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Run one scene under two or more impact laws, from the same start with the same dt,\n"
+                    "print a summary (energy lost, impulses, time to settle) and write DIR/comparison.png:\n"
+                    "energy over time, the jack's height at each impulse, impulse counts.\n\n"
+                    "Each --restitution value E sets both the jack-wall restitution e and the box-ground\n"
+                    "restitution e_ground (for a scene without ground_restitution this is what\n"
+                    "--set restitution=E does). A run has settled once its energy stays within 1% of the\n"
+                    "energy it lost of its final value, for at least the last 10% of the run.")
+    compare.add_argument("scene", help="built-in scene name or path to a .toml scene file")
+    compare.add_argument("--restitution", "-e", nargs="+", required=True, metavar="E",
+                         help="two or more restitutions in [0, 1] (1 elastic, 0 plastic)")
+    _simulation_options(compare, METHODS)
+    compare.add_argument("--out", type=Path, metavar="DIR",
+                         help="output folder (default: runs/<scene name>)")
+    compare.add_argument("--quiet", "-q", action="store_true", help="no progress bar or summary")
+    compare.set_defaults(func=cmd_compare)
+
+    animate = sub.add_parser(
+        "animate", help="make the animation of a saved trajectory",
+        description="Write an offline HTML animation of a trajectory .npz: the box's inner and outer "
+                    "boundary, the jack's shape, the ground, a trail of the jack's centre, impulses "
+                    "highlighted; Play/Pause and a time slider. It plays at real time by default.")
+    animate.add_argument("file", type=Path, metavar="FILE.npz", help="a trajectory written by jackbox run")
+    animate.add_argument("--out", type=Path, metavar="PATH.html",
+                         help="output page (default: animation.html beside a run's trajectory.npz, "
+                              "else FILE with .html)")
+    animate.add_argument("--fps", type=_positive, default=25.0,
+                         help="frames per second of playback (default: 25)")
+    animate.add_argument("--speed", type=_positive, default=1.0,
+                         help="simulated seconds per second of playback (default: 1, real time)")
+    animate.add_argument("--max-frames", type=_frames, default=1000, metavar="N",
+                         help="at most N frames: a longer run plays at a lower frame rate (default: 1000)")
+    animate.add_argument("--trail", type=_non_negative, default=1.0, metavar="S",
+                         help="seconds of simulated time in the jack centre's trail (default: 1)")
+    animate.add_argument("--plotlyjs", choices=("inline", "beside"), default="inline",
+                         help="inline: one self-contained page (default); beside: a small page that "
+                              "loads plotly.min.js written in its folder")
+    animate.add_argument("--quiet", "-q", action="store_true", help="no progress bar or summary")
+    animate.set_defaults(func=cmd_animate)
+
+    plot = sub.add_parser("plot", help="draw the time series of a saved trajectory",
+                          description="Write the time series PNG of a trajectory .npz (as jackbox run does).")
+    plot.add_argument("file", type=Path, metavar="FILE.npz", help="a trajectory written by jackbox run")
+    plot.add_argument("--out", type=Path, metavar="PATH.png",
+                      help="output image (default: timeseries.png beside a run's trajectory.npz, "
+                           "else FILE with .png)")
+    plot.add_argument("--quiet", "-q", action="store_true", help="no summary")
+    plot.set_defaults(func=cmd_plot)
 
     build = sub.add_parser("build", help="regenerate the generated model modules",
                            description="Regenerate the generated module of each scene: built-in "
@@ -85,6 +154,39 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _simulation_options(parser, methods) -> None:
+    parser.add_argument("--t-end", type=float, metavar="T", help="simulated time in s (default: the scene's)")
+    parser.add_argument("--dt", type=float, help="RK4 step in s (default: the scene's)")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", dest="overrides",
+                        help="change a scene value: a [params] name, a key such as restitution or "
+                             "gravity, or section.key; repeatable")
+    parser.add_argument("--method", choices=methods,
+                        help=f"how impacts are handled: {', '.join(methods)} (default: jackbox.simulate's)")
+
+
+def _number(text: str, ok, what: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and ok(value)):
+        raise argparse.ArgumentTypeError(f"must be {what}, got {text}")
+    return value
+
+
+def _positive(text: str) -> float:
+    return _number(text, lambda v: v > 0, "a number > 0")
+
+
+def _non_negative(text: str) -> float:
+    return _number(text, lambda v: v >= 0, "a number >= 0")
+
+
+def _frames(text: str) -> int:
+    value = _number(text, lambda v: v >= 2 and v == int(v), "a whole number >= 2")
+    return int(value)
+
+
 def _overrides(pairs: list[str]) -> dict[str, str]:
     out = {}
     for pair in pairs:
@@ -95,20 +197,62 @@ def _overrides(pairs: list[str]) -> dict[str, str]:
     return out
 
 
+def _restitutions(values: list[str]) -> list[float]:
+    out = []
+    for text in values:
+        try:
+            e = float(text)
+        except ValueError:
+            raise JackboxError(f"--restitution {text!r}: not a number") from None
+        if not (math.isfinite(e) and 0.0 <= e <= 1.0):
+            raise JackboxError(f"--restitution {text}: must be in [0, 1] (1 elastic, 0 plastic)")
+        if e in out:
+            raise JackboxError(f"--restitution {text}: given twice")
+        out.append(e)
+    if len(out) < 2:
+        raise JackboxError("--restitution: give two or more values to compare, e.g. --restitution 1.0 0.6")
+    return out
+
+
+def _out_dir(args, scene) -> Path:
+    out_dir = args.out if args.out is not None else Path("runs") / scene.name
+    if out_dir.exists() and not out_dir.is_dir():
+        raise JackboxError(f"--out {out_dir}: exists and is not a folder")
+    return out_dir
+
+
+def _out_file(out: Path | None, source: Path, run_name: str, suffix: str) -> Path:
+    """``--out``, else the picture beside its trajectory: ``run_name`` for a run's
+    ``trajectory.npz``, else the file's own name with ``suffix``."""
+    path = out if out is not None else (
+        source.with_name(run_name) if source.stem == "trajectory" else source.with_suffix(suffix))
+    if path.is_dir():
+        raise JackboxError(f"--out {path}: is a folder (give a file name)")
+    return path
+
+
+def _simulate_kwargs(args) -> dict:
+    # pass the method only when asked: otherwise jackbox.simulate's default applies
+    return {"method": args.method} if args.method else {}
+
+
+def _say(args):
+    return (lambda *a: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+
+
 def cmd_run(args) -> int:
     from .api import simulate
     from .scene import load_scene
 
     scene = load_scene(args.scene, _overrides(args.overrides))
-    out_dir = args.out if args.out is not None else Path("runs") / scene.name
-    if out_dir.exists() and not out_dir.is_dir():
-        raise JackboxError(f"--out {out_dir}: exists and is not a folder")
-    say = (lambda *a: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    out_dir = _out_dir(args, scene)
     t0 = time.perf_counter()
     traj = simulate(scene, t_end=args.t_end, dt=args.dt, record_every=args.record_every,
-                    progress=not args.quiet, log=say)
+                    progress=not args.quiet, log=_say(args), **_simulate_kwargs(args))
     wall = time.perf_counter() - t0
-    path = traj.save(out_dir / "trajectory.npz")
+    written = [traj.save(out_dir / "trajectory.npz")]
+    if not args.no_plots:
+        written += _pictures(traj, scene, out_dir, progress=not args.quiet)
     if not args.quiet:
         k = traj.meta["kernel"]
         steps = traj.meta["n_steps"]
@@ -123,6 +267,74 @@ def cmd_run(args) -> int:
               f"in {k['load_seconds']:.2f} s, ran in {k['run_seconds']:.3f} s)")
         if k["steps_per_second"]:
             print(f"speed      {k['steps_per_second']:.3g} steps/s")
+        for path in written:
+            print(f"wrote      {path}")
+    return 0
+
+
+def _pictures(traj, scene, out_dir: Path, progress: bool) -> list[Path]:
+    """timeseries.png and animation.html of a run, beside its trajectory."""
+    from . import animate, plots
+    from .geometry import Geometry
+
+    geometry = Geometry.from_scene(scene, traj.meta.get("params"))
+    png = plots.write_timeseries(traj, out_dir / "timeseries.png", geometry)
+    html = animate.write_animation(traj, out_dir / "animation.html", geometry=geometry, progress=progress)
+    return [png, html]
+
+
+def cmd_compare(args) -> int:
+    from .api import simulate
+    from .scene import load_scene
+
+    values = _restitutions(args.restitution)
+    scene = load_scene(args.scene, _overrides(args.overrides))
+    out_dir = _out_dir(args, scene)
+    trajs = []
+    for e in values:
+        trajs.append(simulate(scene, t_end=args.t_end, dt=args.dt, params={"e": e, "e_ground": e},
+                              progress=not args.quiet, log=_say(args), **_simulate_kwargs(args)))
+    from . import plots
+
+    labels = [f"e = {e:g}" for e in values]
+    path = plots.write_comparison(trajs, labels, out_dir / "comparison.png")
+    if not args.quiet:
+        first = trajs[0]
+        print(f"scene      {scene.name} ({scene.source}), method {first.meta['method']}, "
+              f"dt = {first.meta['dt']:g} s, t = {first.t[0]:g}..{first.t[-1]:g} s")
+        print("           each run sets e (jack-wall) and e_ground (box-ground) to its value")
+        print(plots.summary_table([plots.summarize(tr, f"{e:g}") for tr, e in zip(trajs, values)]))
+        print(f"wrote      {path}")
+    return 0
+
+
+def _load_trajectory(path: Path):
+    from .trajectory import Trajectory
+
+    if path.is_dir():
+        raise JackboxError(f"{path}: is a folder, not a trajectory .npz")
+    return Trajectory.load(path)
+
+
+def cmd_animate(args) -> int:
+    from . import animate
+
+    out = _out_file(args.out, args.file, "animation.html", ".html")
+    traj = _load_trajectory(args.file)
+    path = animate.write_animation(traj, out, plotlyjs=args.plotlyjs, fps=args.fps, speed=args.speed,
+                                   max_frames=args.max_frames, trail=args.trail, progress=not args.quiet)
+    if not args.quiet:
+        print(f"wrote      {path}")
+    return 0
+
+
+def cmd_plot(args) -> int:
+    from . import plots
+
+    out = _out_file(args.out, args.file, "timeseries.png", ".png")
+    traj = _load_trajectory(args.file)
+    path = plots.write_timeseries(traj, out)
+    if not args.quiet:
         print(f"wrote      {path}")
     return 0
 

@@ -113,11 +113,12 @@ def test_scenes_lists_builtins(capsys):
 def drop_run(tmp_path_factory):
     """One quiet 0.2 s run of drop, shared by the tests that only read its output."""
     out_dir = tmp_path_factory.mktemp("drop_run") / "out"
-    status = main(["run", "drop", "--t-end", T_END, "--out", str(out_dir), "-q"])
+    status = main(["run", "drop", "--t-end", T_END, "--out", str(out_dir), "-q", "--no-plots"])
     return status, out_dir
 
 
-def test_run_quiet_writes_only_the_trajectory(drop_run):
+def test_run_no_plots_writes_only_the_trajectory(drop_run):
+    # the pictures that run writes by default are tested in test_plots.py
     status, out_dir = drop_run
     assert status == 0
     assert files_under(out_dir) == {"trajectory.npz"}
