@@ -128,6 +128,8 @@ def finish(run: Run, t, q, qd, energy, impact_t, impact_k, extra: dict,
         "n_steps": run.n_steps, "record_every": run.record_every,
         "params": dict(zip(scene.param_names, run.p.tolist())),
         "model_hash": loader.model_hash(scene.structure()),
+        # the scene's tables after --set overrides: the run's shapes, not just the file's
+        "scene_tables": scene.raw,
     } | extra
     empty = np.empty(0)
     return Trajectory(t=t, q=q, qd=qd, energy=energy, impact_t=impact_t,

@@ -47,12 +47,13 @@ class Geometry:
 
     @classmethod
     def from_trajectory(cls, traj) -> Geometry:
-        """The shapes of the run that made ``traj`` (its scene text and ``meta["params"]``)."""
-        from .scene import _build
+        """The shapes of the run that made ``traj``: its scene tables after overrides
+        (``meta["scene_tables"]``, else the scene text) and ``meta["params"]``."""
+        from .scene import scene_from_tables
 
         try:
-            raw = tomllib.loads(traj.scene)
-            scene = _build(raw, str(traj.meta.get("scene", "trajectory")), traj.scene, False)
+            raw = traj.meta.get("scene_tables") or tomllib.loads(traj.scene)
+            scene = scene_from_tables(raw, str(traj.meta.get("scene", "trajectory")), traj.scene)
         except (tomllib.TOMLDecodeError, JackboxError) as exc:
             raise JackboxError(f"the trajectory's scene text cannot be read: {exc}") from None
         params = {k: v for k, v in traj.meta.get("params", {}).items() if k in scene.param_names}

@@ -186,6 +186,11 @@ def load_scene(scene: "str | Path | Scene", overrides: dict[str, Any] | None = N
     return _build(raw, source, text, builtin)
 
 
+def scene_from_tables(tables: dict, source: str = "<tables>", text: str = "") -> Scene:
+    """A checked Scene from TOML tables (as ``tomllib.loads`` gives, or ``Scene.raw``)."""
+    return _build(tables, source, text, False)
+
+
 def apply_overrides(raw: dict, overrides: dict[str, Any], source: str) -> dict:
     """Return a copy of the TOML tables with ``name=value`` settings applied.
 

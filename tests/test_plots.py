@@ -486,3 +486,15 @@ def test_help_of_the_new_commands(capsys):
         assert status == 0
         for option in options:
             assert option in out, (command, option)
+
+
+def test_geometry_of_a_saved_run_follows_its_overrides_not_the_file(tmp_path):
+    # drop.toml has a square jack; --set jack.shape=cross changes the run's
+    # shape, and the saved file must draw a cross
+    from jackbox.geometry import Geometry
+
+    scene = jackbox.load_scene("drop", {"jack.shape": "cross"})
+    jackbox.simulate(scene, t_end=0.01).save(tmp_path / "run.npz")
+    geometry = Geometry.from_trajectory(jackbox.Trajectory.load(tmp_path / "run.npz"))
+    assert geometry.shape == "cross"
+    assert Geometry.from_trajectory(jackbox.simulate("drop", t_end=0.01)).shape == "square"
