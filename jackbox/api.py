@@ -158,7 +158,7 @@ def simulate(scene: Scene | str, t_end: float | None = None, dt: float | None = 
     run = prepare(scene, t_end, dt, record_every, params, method)
     t_load = time.perf_counter()
     kernel = loader.kernel_for(run.scene, log)
-    compiled = loader.compile_kernel(kernel)
+    compiled = loader.compile_kernel(kernel, run.method)
     load_seconds = time.perf_counter() - t_load
 
     n = run.n_samples
