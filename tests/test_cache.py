@@ -33,6 +33,8 @@ def test_second_process_loads_the_kernel_from_cache(tmp_path):
 @pytest.fixture
 def fresh_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("JACKBOX_CACHE_DIR", str(tmp_path / "cache"))
+    # kernels imported earlier in this process would be reused from memory
+    monkeypatch.setattr(loader, "_loaded", {})
     return tmp_path / "cache"
 
 
