@@ -304,6 +304,10 @@ def integrate(q, qd, p, t0, dt, i_begin, i_end, n_total, record_every,
 # Scratch rows of the (SC, N_CONTACT) float array `sc` and the (SN, N_DOF) `sn`.
 _GA, _GB, _GS, _VA, _VB, _BIAS, _RHS, _LAM, _W = 0, 1, 2, 3, 4, 5, 6, 7, 8
 SC = 9
+# Event kinds for event_value/locate. Calls pass them as np.int64(...): a bare
+# literal would make Numba compile one specialisation per value.
+GAP_EVENT_KIND = 0
+FORCE_EVENT_KIND = 1
 _QB, _QDB, _QS, _QDS, _WINV, _AF = 0, 1, 2, 3, 4, 5
 SN = 6
 
@@ -483,9 +487,9 @@ def contact_update(t, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind
         b[i] = v[k] + (e * v[k] if v[k] < -vrest else 0.0)
         if v[k] < -tiny:
             approaching = True
-    contact_matrix(jac, winv, near, m, A)
+    contact_matrix(jac, winv, near, np.int64(m), A)
     if approaching:
-        solve_lcp(A, b, m, lam)
+        solve_lcp(A, b, np.int64(m), lam)
         for d in range(N_DOF):
             s = 0.0
             for i in range(m):
@@ -493,7 +497,7 @@ def contact_update(t, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind
             qd[d] += winv[d] * s
         for i in range(m):
             if lam[i] * A[i, i] > tiny:
-                n_ev = log_event(t, near[i], IMPULSE, ev_t, ev_k, ev_kind, n_ev)
+                n_ev = log_event(t, near[i], np.int64(IMPULSE), ev_t, ev_k, ev_kind, n_ev)
         gap_rate(t, q, qd, p, v)
     # Contacts closed and (now) at rest: which of them carry a force?
     cand = np.empty(m, np.int64)
@@ -507,7 +511,7 @@ def contact_update(t, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind
     newrest = np.zeros(N_CONTACT, np.int64)
     if c > 0:
         gap_bias(t, q, qd, p, bias)
-        contact_matrix(jac, winv, cand, c, A)
+        contact_matrix(jac, winv, cand, np.int64(c), A)
         w0 = np.empty(c)
         for i in range(c):
             k = cand[i]
@@ -515,15 +519,15 @@ def contact_update(t, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind
             for d in range(N_DOF):
                 s += jac[k, d] * a[d]
             w0[i] = s
-        solve_lcp(A, w0, c, lam)
+        solve_lcp(A, w0, np.int64(c), lam)
         for i in range(c):
             if lam[i] > 0.0:
                 newrest[cand[i]] = 1
     for k in range(N_CONTACT):
         if newrest[k] and not rest[k]:
-            n_ev = log_event(t, k, REST, ev_t, ev_k, ev_kind, n_ev)
+            n_ev = log_event(t, k, np.int64(REST), ev_t, ev_k, ev_kind, n_ev)
         elif rest[k] and not newrest[k]:
-            n_ev = log_event(t, k, RELEASE, ev_t, ev_k, ev_kind, n_ev)
+            n_ev = log_event(t, k, np.int64(RELEASE), ev_t, ev_k, ev_kind, n_ev)
         rest[k] = newrest[k]
     m = rest_index(rest, ridx)
     if m > 0:
@@ -645,13 +649,14 @@ def left_bracket(k, ta, h, fa, fb, da, db, sr, q, qd, p, tol, ridx, m, work, jac
     bounce, fa near zero), the hump of the cubic through its values and rates
     at both ends, when the RK4 state there is further from contact.
     """
+    gap_kind = np.int64(GAP_EVENT_KIND)
     tl, fl = ta, fa
     if da > 0.0:
         ext = np.empty(2)
         nx = hermite_extrema(fa, fb, da, db, ext)
         for j in range(nx):
             if ext[j] < sr and hermite(fa, fb, da, db, ext[j]) > fa:
-                f = event_value(0, k, ta, q, qd, ta + ext[j] * h, p, tol, ridx, m, work, jac, sc, sn, A)
+                f = event_value(gap_kind, k, ta, q, qd, ta + ext[j] * h, p, tol, ridx, m, work, jac, sc, sn, A)
                 if f > fl:
                     tl, fl = ta + ext[j] * h, f
                 break
@@ -670,6 +675,7 @@ def first_crossing(ta, tb, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A):
     """
     h = tb - ta
     half = 0.5 * tol[T_EVENT]
+    gap_kind = np.int64(GAP_EVENT_KIND)
     ga, gb, va, vb = sc[_GA], sc[_GB], sc[_VA], sc[_VB]
     band = step_reach(qd, sn[_QDB], h, tol)
     near = False
@@ -702,7 +708,7 @@ def first_crossing(ta, tb, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A):
         for j in range(nx):
             if hermite(fa, fb, da, db, ext[j]) < 0.0 and (sr < 0.0 or ext[j] < sr):
                 sr = ext[j]
-                fr = event_value(0, k, ta, q, qd, ta + sr * h, p, tol, ridx, m, work, jac, sc, sn, A)
+                fr = event_value(gap_kind, k, ta, q, qd, ta + sr * h, p, tol, ridx, m, work, jac, sc, sn, A)
                 if fr >= 0.0:
                     sr = 1.0 if fb < 0.0 else -1.0
                     fr = fb
@@ -716,7 +722,7 @@ def first_crossing(ta, tb, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A):
         tl, fl = left_bracket(k, ta, h, fa, fb, da, db, sr, q, qd, p, tol, ridx, m, work, jac, sc, sn, A)
         if fl <= 0.0:
             return ta  # touching now, with no resolvable flight before the crossing
-        tl, tr = locate(0, k, ta, q, qd, tl, fl, tr, fr, p, tol, ridx, m, work, jac, sc, sn, A)
+        tl, tr = locate(gap_kind, k, ta, q, qd, tl, fl, tr, fr, p, tol, ridx, m, work, jac, sc, sn, A)
         if best_k < 0 or tl < best_t:
             best_t, best_l, best_k = tl, tl, k
             t_hi = tr
@@ -725,7 +731,7 @@ def first_crossing(ta, tb, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A):
     # The state just before the first crossing; any other gap already below
     # zero there crossed earlier: locate it within [ta, best].
     for _ in range(N_CONTACT):
-        event_value(0, best_k, ta, q, qd, best_l, p, tol, ridx, m, work, jac, sc, sn, A)
+        event_value(gap_kind, np.int64(best_k), ta, q, qd, best_l, p, tol, ridx, m, work, jac, sc, sn, A)
         g = sc[_GS]
         worst = -1
         for k in range(N_CONTACT):
@@ -736,11 +742,11 @@ def first_crossing(ta, tb, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A):
         fr = g[worst] + half
         fa, fb = ga[worst] + half, gb[worst] + half
         sr = (best_l - ta) / h
-        tl, fl = left_bracket(worst, ta, h, fa, fb, h * va[worst], h * vb[worst], sr,
+        tl, fl = left_bracket(np.int64(worst), ta, h, fa, fb, h * va[worst], h * vb[worst], sr,
                               q, qd, p, tol, ridx, m, work, jac, sc, sn, A)
         if fl <= 0.0:
             return ta
-        tl, tr = locate(0, worst, ta, q, qd, tl, fl, best_l, fr, p, tol, ridx, m, work, jac, sc, sn, A)
+        tl, tr = locate(gap_kind, np.int64(worst), ta, q, qd, tl, fl, best_l, fr, p, tol, ridx, m, work, jac, sc, sn, A)
         best_l, best_k = tl, worst
     return best_l
 
@@ -764,7 +770,7 @@ def first_release(ta, tb, q, qd, p, tol, ridx, m, work, jac, sc, sn, A):
             continue
         if lam_a[i] < 0.0:
             return ta
-        tl, tr = locate(1, i, ta, q, qd, ta, lam_a[i], tb, lam_b[i], p, tol, ridx, m, work, jac, sc, sn, A)
+        tl, tr = locate(np.int64(FORCE_EVENT_KIND), i, ta, q, qd, ta, lam_a[i], tb, lam_b[i], p, tol, ridx, m, work, jac, sc, sn, A)
         if best < 0.0 or tr < best:
             best = tr
     return best
