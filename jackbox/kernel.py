@@ -267,7 +267,7 @@ def integrate(q, qd, p, t0, dt, i_begin, i_end, n_total, record_every,
     gap = np.empty(N_CONTACT)
     rows = np.empty(N_CONTACT, np.int64)
     box = np.empty(6)
-    if i_begin == 0:
+    if i_begin == 0 and n_rec == 0:   # (not again when resumed after a full log)
         record(t0, q, qd, p, n_rec, rec_t, rec_q, rec_qd, rec_energy, box)
         n_rec += 1
     for i in range(i_begin, i_end):
@@ -449,14 +449,15 @@ def log_event(t, k, kind, ev_t, ev_k, ev_kind, n_ev):
 
 
 @njit(cache=True)
-def contact_update(t, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind, n_ev):
+def contact_update(t, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind, n_ev, vscale):
     """At an event: impulses for the contacts that take part, then the persistent set.
 
-    Contacts closer than T_GAP take part. Approaching ones get Newton's law
-    (restitution e, or 0 for speeds below T_VREST: those come to rest); all
-    are solved together. Then the contacts that are closed and still get
+    Contacts closer than T_GAP take part when they approach or are still.
+    Approaching ones get Newton's law (restitution e, or 0 for speeds below
+    T_VREST * vscale: those come to rest); all are solved together. Then the contacts that are closed and still get
     the accelerations' LCP ``w = A lam + (J a + bias) >= 0, lam >= 0, w.lam = 0``;
     those with a force stay (or become) persistent, the others are released.
+    vscale (normally 1) widens "at rest" when an event made no progress.
     Returns ``(n_ev, m)`` with m the number of persistent contacts.
     """
     g, v, bias = sc[_GS], sc[_VB], sc[_BIAS]
@@ -467,8 +468,10 @@ def contact_update(t, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind
     inverse_mass(p, winv)
     near = np.empty(N_CONTACT, np.int64)
     m = 0
+    # closer than T_GAP, or than the contact travels in the time resolution at t
+    dt_res = 8.0 * 2.220446049250313e-16 * max(abs(t), 1.0)
     for k in range(N_CONTACT):
-        if g[k] < tol[T_GAP] or rest[k]:
+        if g[k] < tol[T_GAP] + abs(v[k]) * dt_res or rest[k]:
             near[m] = k
             m += 1
     if m == 0:
@@ -476,28 +479,38 @@ def contact_update(t, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind
             if rest[k]:
                 rest[k] = 0
         return n_ev, 0
-    vrest = tol[T_VREST]
-    tiny = 1e-3 * vrest        # normal speeds below this are round-off
-    b = np.empty(m)
-    lam = np.empty(m)
+    vrest = tol[T_VREST] * vscale
+    tiny = 1e-3 * tol[T_VREST]  # normal speeds below this are round-off
+    # The impact: contacts that approach or are closed and still. A receding
+    # contact takes no part: an impulse there would push it apart while the
+    # others' impulses slow it, which adds energy (it may hit again later).
+    hit = np.empty(m, np.int64)
+    nh = 0
     approaching = False
     for i in range(m):
         k = near[i]
-        e = p[E_SLOT] if k < N_WALL_CONTACT else p[E_GROUND_SLOT]
-        b[i] = v[k] + (e * v[k] if v[k] < -vrest else 0.0)
-        if v[k] < -tiny:
-            approaching = True
-    contact_matrix(jac, winv, near, np.int64(m), A)
+        if v[k] <= tiny:
+            hit[nh] = k
+            nh += 1
+            if v[k] < -tiny:
+                approaching = True
     if approaching:
-        solve_lcp(A, b, np.int64(m), lam)
+        b = np.empty(nh)
+        lam = np.empty(nh)
+        for i in range(nh):
+            k = hit[i]
+            e = p[E_SLOT] if k < N_WALL_CONTACT else p[E_GROUND_SLOT]
+            b[i] = v[k] + (e * v[k] if v[k] < -vrest else 0.0)
+        contact_matrix(jac, winv, hit, np.int64(nh), A)
+        solve_lcp(A, b, np.int64(nh), lam)
         for d in range(N_DOF):
             s = 0.0
-            for i in range(m):
-                s += jac[near[i], d] * lam[i]
+            for i in range(nh):
+                s += jac[hit[i], d] * lam[i]
             qd[d] += winv[d] * s
-        for i in range(m):
+        for i in range(nh):
             if lam[i] * A[i, i] > tiny:
-                n_ev = log_event(t, near[i], np.int64(IMPULSE), ev_t, ev_k, ev_kind, n_ev)
+                n_ev = log_event(t, hit[i], np.int64(IMPULSE), ev_t, ev_k, ev_kind, n_ev)
         gap_rate(t, q, qd, p, v)
     # Contacts closed and (now) at rest: which of them carry a force?
     cand = np.empty(m, np.int64)
@@ -513,15 +526,16 @@ def contact_update(t, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind
         gap_bias(t, q, qd, p, bias)
         contact_matrix(jac, winv, cand, np.int64(c), A)
         w0 = np.empty(c)
+        force = np.empty(c)
         for i in range(c):
             k = cand[i]
             s = bias[k]
             for d in range(N_DOF):
                 s += jac[k, d] * a[d]
             w0[i] = s
-        solve_lcp(A, w0, np.int64(c), lam)
+        solve_lcp(A, w0, np.int64(c), force)
         for i in range(c):
-            if lam[i] > 0.0:
+            if force[i] > 0.0:
                 newrest[cand[i]] = 1
     for k in range(N_CONTACT):
         if newrest[k] and not rest[k]:
@@ -787,6 +801,7 @@ def advance(ta, tb, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A, ev_t, ev
     """
     target = tb
     releasing = False
+    stuck = 0
     qb, qdb = sn[_QB], sn[_QDB]
     for _ in range(MAX_EVENTS):
         if not trial:
@@ -795,7 +810,7 @@ def advance(ta, tb, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A, ev_t, ev
             tr = first_release(ta, target, q, qd, p, tol, ridx, m, work, jac, sc, sn, A)
             if tr == ta:       # a persistent contact already pulls: let it go now
                 n_ev, m = contact_update(ta, q, qd, p, tol, rest, ridx, jac, sc, A,
-                                         ev_t, ev_k, ev_kind, n_ev)
+                                         ev_t, ev_k, ev_kind, n_ev, 1.0)
                 phi(ta, q, p, sc[_GA])
                 continue
             if tr > ta:        # step to where it lets go (gaps are checked on the way)
@@ -805,17 +820,31 @@ def advance(ta, tb, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A, ev_t, ev
         if not trial:
             phi(target, qb, p, sc[_GB])
         trial = False
+        if stuck >= 3:
+            return n_ev, m, STALLED
         te = first_crossing(ta, target, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A)
         if te >= 0.0:
             if te > ta:
                 q[:] = sn[_QS]
                 qd[:] = sn[_QDS]
                 ta = te
-            n_ev, m = contact_update(ta, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind, n_ev)
+                stuck = 0
+            else:
+                stuck += 1
+            # An event at the same instant that changed nothing: a contact
+            # touching at round-off level with no resolvable motion. Next time
+            # treat every slow contact as at rest; if that changes nothing
+            # either, stop (STALLED) rather than let a body through a wall.
+            n0, m0 = n_ev, m
+            n_ev, m = contact_update(ta, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind, n_ev,
+                                     1.0 if stuck < 2 else 1e6)
+            if n_ev != n0 or m != m0:
+                stuck = 0
             phi(ta, q, p, sc[_GA])
             target = tb
             releasing = False
             continue
+        stuck = 0
         q[:] = qb
         qd[:] = qdb
         ta = target
@@ -825,7 +854,7 @@ def advance(ta, tb, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A, ev_t, ev
         else:
             sc[_GA, :] = sc[_GB]
         if releasing:          # arrived where a persistent contact lets go
-            n_ev, m = contact_update(ta, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind, n_ev)
+            n_ev, m = contact_update(ta, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind, n_ev, 1.0)
             phi(ta, q, p, sc[_GA])
             target = tb
             releasing = False
@@ -852,8 +881,8 @@ def integrate_exact(q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record
     ridx = np.empty(N_CONTACT, np.int64)
     box = np.empty(6)
     m = rest_index(rest, ridx)
-    if i_begin == 0:
-        n_ev, m = contact_update(t0, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind, n_ev)
+    if i_begin == 0 and n_rec == 0:   # (not again when resumed after a full log)
+        n_ev, m = contact_update(t0, q, qd, p, tol, rest, ridx, jac, sc, A, ev_t, ev_k, ev_kind, n_ev, 1.0)
         record(t0, q, qd, p, n_rec, rec_t, rec_q, rec_qd, rec_energy, box)
         n_rec += 1
     ga, gb = sc[_GA], sc[_GB]

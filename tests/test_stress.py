@@ -1,0 +1,738 @@
+"""Stress tests of the exact method: invariants over random scenes and start
+states (hypothesis), and named hard cases.
+
+Every run records every step and is checked against what does not depend on
+the code under test:
+
+* no gap below -1e-9 L at any recorded sample, evaluated by
+  :func:`jackbox.scene.contact_gaps` (numpy, not the generated code): the exact
+  method locates every event at -0.5e-12 L, and 1e-9 L is the tolerance the
+  scene format itself grants a start state;
+* a finite state everywhere;
+* the energy column equals kinetic + gravity recomputed here from q and qd;
+* with gravity only (no forces, no potential) the energy never rises: between
+  impacts a free flight is a polynomial of degree 2 that RK4 integrates
+  exactly, and Newton's law with e <= 1 takes energy out or keeps it, so a
+  step without resting contact may raise the energy by round-off only (a
+  step with one, by RK4's error on the constrained motion);
+* with no gravity, total linear and angular momentum (orbital r x m v plus
+  spins J omega) are kept: every impulse acts on both bodies at one point.
+
+The named cases check closed-form answers: 1D collisions at mass ratios
+1e-3 .. 1e3, a corner hit, hit times of a jack at 1e4 L/s with dt = 0.01 s,
+a grazing corner, wedged jacks, e = 0 and e = 1, and 2e5 elastic impacts.
+Known failures found here are xfail(strict=True) tests at the end, each with
+its reproducer.
+
+Runs are cheap, structures are not: every scene here is one of four compiled
+structures (the built-in ``drop``; the tests' ``float`` and ``hand``; a
+weightless cross defined below) and everything random is a runtime value
+(masses, sizes, e, g, start state, dt), so nothing is compiled per example.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, Phase, assume, given, reject, settings
+from hypothesis import strategies as st
+
+import jackbox
+from jackbox import api
+from jackbox.scene import contact_gaps
+
+from .conftest import FREE_FLOAT, PRESCRIBED, write_scene
+
+EPS = np.finfo(float).eps
+#: events are located where a gap is -EVENT/2 (in units of L): jackbox.api.EVENT_TOL
+EVENT = 1e-12
+#: the gap every recorded sample must keep, in units of the box's inner half-width L
+GAP_FLOOR = -1e-9
+#: energy changes a step may show with no resting contact in it, relative to the
+#: run's energy scale: evaluating the energy and applying impulses round off at a
+#: few eps of that scale per operation; a Zeno cascade can put hundreds of
+#: impulses in one step, and 1e-12 still leaves a factor of ~10 above their
+#: random walk, while the energy gains found so far were 3e-7 and more.
+ROUND_OFF = 1e-12
+
+#: The kernel stops with "more than 10000 contact events in the step" (STALLED)
+#: in states that are physically fine (see the xfail tests at the end of the
+#: file and their reproducers). While that is so, the property tests reject the
+#: examples that stall, so the other invariants keep being checked; when the
+#: xfail tests start passing (strict: they then fail), set this to False.
+KNOWN_STALL = True
+
+#: A weightless cross: the second free structure (four point masses, not a plate).
+CROSS = """
+name = "stress_cross"
+description = "weightless box, cross jack (tests/test_stress.py)"
+[box]
+inner_half_width = 1.0
+wall_thickness = 0.1
+mass = 2.0
+[jack]
+shape = "cross"
+half_size = 0.5
+mass = 1.0
+[world]
+gravity = 0.0
+[initial]
+q = [0, 0, 0, 0, 0, 0.3]
+[run]
+t_end = 1.0
+dt = 1e-3
+"""
+
+#: Reproducible in CI (derandomize). No shrinking: one example is a simulation of
+#: up to 2000 steps, shrinking takes many minutes, and the failing draw is printed
+#: in full anyway (scene overrides and dt: enough to rerun it with load_scene).
+PROPERTY = settings(max_examples=25, deadline=None, derandomize=True,
+                    phases=[Phase.explicit, Phase.generate],
+                    suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
+
+
+def scene_from_text(text: str, name: str):
+    with tempfile.TemporaryDirectory() as folder:
+        return jackbox.load_scene(write_scene(Path(folder), text, name))
+
+
+@functools.cache
+def base(structure: str):
+    """The four structures every test here draws its scenes from (loaded once)."""
+    if structure == "drop":
+        return jackbox.load_scene("drop")
+    text = {"float": FREE_FLOAT, "cross": CROSS, "hand": PRESCRIBED}[structure]
+    return scene_from_text(text, f"{structure}.toml")
+
+
+class RunTooLong(Exception):
+    pass
+
+
+class _Watch:
+    """Stands in for the progress bar: stops a run between chunks once it takes too long."""
+
+    def __init__(self, seconds):
+        self.deadline = time.perf_counter() + seconds
+
+    def update(self, n):
+        if time.perf_counter() > self.deadline:
+            raise RunTooLong
+
+    def close(self):
+        pass
+
+
+def simulate(scene, seconds=1.0, reject_stall=True, **kw):
+    """jackbox.simulate in chunks of 64 steps, stopped after `seconds` of wall time.
+
+    (Chunking never changes a result: tests/test_kernel.py.) With KNOWN_STALL, a
+    run that stalls, or chatters on so long that it is stopped, is rejected
+    rather than failed.
+    """
+    saved = api.CHUNK, api._progress
+    api.CHUNK, api._progress = 64, lambda total, enabled: _Watch(seconds)
+    try:
+        return jackbox.simulate(scene, progress=True, **kw)
+    except (jackbox.SimulationError, RunTooLong) as exc:
+        if reject_stall and KNOWN_STALL and (isinstance(exc, RunTooLong) or "contact events in the step" in str(exc)):
+            reject()
+        raise
+    finally:
+        api.CHUNK, api._progress = saved
+
+
+# --- checks -----------------------------------------------------------------------------
+
+def check_gaps(traj, scene):
+    """No recorded sample penetrates by more than 1e-9 L (gaps from numpy, not the kernel)."""
+    P = scene.params()
+    L = P["L"]
+    gaps = np.array([contact_gaps(q, scene.points, L, P["w_box"], scene.has_ground_contacts)
+                     for q in traj.q])
+    i, k = np.unravel_index(np.argmin(gaps), gaps.shape)
+    assert gaps[i, k] >= GAP_FLOOR * L, (
+        f"sample {i} (t = {traj.t[i]:.9g} s): contact {scene.constraint_names[k]} has gap "
+        f"{gaps[i, k]:.3g} = {gaps[i, k] / L:.3g} L")
+    return gaps
+
+
+def check_finite(traj):
+    for key in ("t", "q", "qd", "energy"):
+        assert np.all(np.isfinite(getattr(traj, key))), key
+
+
+def kinetic(traj, P):
+    qd = traj.qd
+    return 0.5 * (P["m_box"] * (qd[:, 0] ** 2 + qd[:, 1] ** 2) + P["J_box"] * qd[:, 2] ** 2
+                  + P["m_jack"] * (qd[:, 3] ** 2 + qd[:, 4] ** 2) + P["J_jack"] * qd[:, 5] ** 2)
+
+
+def energy_scale(traj, P):
+    """The size of the terms the energy is summed from (its round-off is relative to this)."""
+    gravity = P["g"] * (P["m_box"] * np.abs(traj.q[:, 1]) + P["m_jack"] * np.abs(traj.q[:, 4]))
+    return max(float((kinetic(traj, P) + gravity).max()), 1e-300)
+
+
+def steps_with(times, traj):
+    """(N-1,) True for each step (t_i, t_i+1] that contains one of `times`."""
+    hit = np.zeros(len(traj.t) - 1, bool)
+    idx = np.searchsorted(traj.t, times, side="left") - 1
+    hit[np.clip(idx, 0, len(hit) - 1)] = True
+    return hit
+
+
+def resting_steps(traj):
+    """(N-1,) True for each step during which some contact was persistent (held closed)."""
+    busy = np.zeros(len(traj.t) - 1, bool)
+    since = {}
+    for t, k, kind in zip(traj.contact_t, traj.contact_constraint, traj.contact_event):
+        if kind == 1:
+            since.setdefault(k, t)
+        elif k in since:
+            start = since.pop(k)
+            busy |= (traj.t[1:] >= start) & (traj.t[:-1] <= t)
+    for start in since.values():
+        busy |= traj.t[1:] >= start
+    return busy
+
+
+def check_energy(traj, scene, elastic=False):
+    """Gravity-only scene: energy as recomputed, never rising, kept between impacts.
+
+    A step with a persistent contact in it follows RK4 on a constrained, curved
+    motion: its energy may change by RK4's error, O((omega dt)^5) of the scale,
+    with omega the largest rate (angular, or speed / L) of the run.
+    """
+    P = scene.params()
+    scale = energy_scale(traj, P)
+    computed = kinetic(traj, P) + P["g"] * (P["m_box"] * traj.q[:, 1] + P["m_jack"] * traj.q[:, 4])
+    np.testing.assert_allclose(traj.energy, computed, rtol=0, atol=1e-13 * scale)
+    dE = np.diff(traj.energy) / scale
+    resting = resting_steps(traj)
+    impacts = steps_with(traj.impact_t, traj)
+    free = ~resting
+    if free.any():
+        i = np.flatnonzero(free)[np.argmax(dE[free])]
+        assert dE[i] <= ROUND_OFF, (
+            f"energy rose by {dE[i]:.3g} of its scale in the step to t = {traj.t[i + 1]:.9g} s, "
+            f"impacts there: {[scene.constraint_names[k] for t, k in zip(traj.impact_t, traj.impact_constraint) if traj.t[i] < t <= traj.t[i + 1]]}")
+        # between impacts nothing acts but gravity: kept to round-off
+        calm = free & ~impacts
+        if calm.any():
+            assert np.abs(dE[calm]).max() <= ROUND_OFF, np.abs(dE[calm]).max()
+        if elastic:
+            assert np.abs(dE[free]).max() <= ROUND_OFF, np.abs(dE[free]).max()
+    if resting.any():
+        dt = np.diff(traj.t).max()
+        omega = np.abs(traj.qd[:, [2, 5]]).max() + np.abs(traj.qd[:, [0, 1, 3, 4]]).max() / P["L"]
+        assert dE[resting].max() <= ROUND_OFF + (omega * dt) ** 5, (dE[resting].max(), omega * dt)
+
+
+def momenta(traj, P):
+    """Linear (N, 2) and angular (N,) momentum about the origin, and their scales."""
+    mb, mj, Jb, Jj = P["m_box"], P["m_jack"], P["J_box"], P["J_jack"]
+    q, qd = traj.q, traj.qd
+    linear = mb * qd[:, :2] + mj * qd[:, 3:5]
+    angular = (mb * (q[:, 0] * qd[:, 1] - q[:, 1] * qd[:, 0]) + Jb * qd[:, 2]
+               + mj * (q[:, 3] * qd[:, 4] - q[:, 4] * qd[:, 3]) + Jj * qd[:, 5])
+    lin_scale = max((mb * np.abs(qd[:, :2]) + mj * np.abs(qd[:, 3:5])).max(), 1e-300)
+    ang_scale = max((mb * (np.abs(q[:, 0] * qd[:, 1]) + np.abs(q[:, 1] * qd[:, 0])) + Jb * np.abs(qd[:, 2])
+                     + mj * (np.abs(q[:, 3] * qd[:, 4]) + np.abs(q[:, 4] * qd[:, 3]))
+                     + Jj * np.abs(qd[:, 5])).max(), 1e-300)
+    return linear, angular, lin_scale, ang_scale
+
+
+# --- random scenes ----------------------------------------------------------------------
+
+def log_uniform(lo, hi):
+    return st.floats(math.log10(lo), math.log10(hi)).map(lambda x: 10.0 ** x)
+
+
+unit = st.floats(-1.0, 1.0)
+restitution = st.one_of(st.sampled_from([0.0, 1.0]), st.floats(0.0, 1.0))
+
+
+def extents(points, phi):
+    c, s = math.cos(phi), math.sin(phi)
+    x = c * points[:, 0] - s * points[:, 1]
+    y = s * points[:, 0] + c * points[:, 1]
+    return x.min(), x.max(), y.min(), y.max()
+
+
+@st.composite
+def start_state(draw, points, L, w, ground, speed, r_jack, box_at_origin=False):
+    """q0, qd0 with the jack inside the box (and the box above the ground)."""
+    phi = draw(st.floats(-math.pi, math.pi))                 # jack angle in the box frame
+    x0, x1, y0, y1 = extents(points, phi)
+    assume(x1 - x0 < 2 * L and y1 - y0 < 2 * L)
+    u = 0.5 * (-x0 - x1) + draw(unit) * 0.999 * (L - 0.5 * (x1 - x0))
+    v = 0.5 * (-y0 - y1) + draw(unit) * 0.999 * (L - 0.5 * (y1 - y0))
+    tb = 0.0 if box_at_origin else draw(st.floats(-math.pi, math.pi))
+    xb = 0.0 if box_at_origin else draw(unit) * L
+    if box_at_origin:
+        yb = 0.0
+    elif ground:   # lowest outer corner 1e-3 L .. 3 L above the ground
+        yb = (L + w) * (abs(math.sin(tb)) + abs(math.cos(tb))) + L * draw(st.floats(1e-3, 3.0))
+    else:
+        yb = draw(unit) * L
+    cb, sb = math.cos(tb), math.sin(tb)
+    q = [xb, yb, tb, xb + cb * u - sb * v, yb + sb * u + cb * v, tb + phi]
+    qd = [speed * draw(unit), speed * draw(unit), speed / L * draw(unit),
+          speed * draw(unit), speed * draw(unit), speed / r_jack * draw(unit)]
+    return q, qd
+
+
+@st.composite
+def free_scene(draw, structure, shape, gravity, ground):
+    """Overrides for a random free-box scene of the structure `structure`, and dt."""
+    L = draw(log_uniform(0.1, 10.0))
+    w = L * draw(st.floats(0.02, 0.5))
+    m_box = draw(log_uniform(0.1, 100.0))
+    m_jack = m_box * draw(log_uniform(1e-3, 1e3))
+    a = L * draw(st.floats(0.05, 0.99 if shape == "cross" else 0.70))   # turns freely
+    points = structure.points / structure.params()["a_jack"] * a
+    r_jack = a * (math.sqrt(2.0) if shape == "square" else 1.0)
+    speed = math.sqrt(9.81 * L) * draw(log_uniform(0.1, 10.0))
+    q, qd = draw(start_state(points, L, w, ground, speed, r_jack))
+    e = draw(restitution)
+    over = {"box.inner_half_width": L, "box.wall_thickness": w, "box.mass": m_box,
+            "jack.mass": m_jack, "jack.half_size": a, "gravity": gravity,
+            "restitution": e, "ground_restitution": draw(st.one_of(st.just(e), restitution)),
+            "initial.q": q, "initial.qd": qd}
+    return over, draw(log_uniform(5e-4, 1e-2))
+
+
+@pytest.mark.slow
+@given(data=st.data())
+@PROPERTY
+def test_random_drops_never_penetrate_nor_gain_energy(data):
+    """Box and square jack under gravity with the ground, random everything.
+
+    Checks: finite; gaps; energy recomputed, never rising, kept between impacts
+    (and everywhere with e = 1 on walls and ground); horizontal momentum kept to
+    round-off (gravity and the frictionless ground push only vertically).
+    """
+    scene_base = base("drop")
+    over, dt = data.draw(free_scene(scene_base, "square", 9.81, True))
+    scene = jackbox.load_scene(scene_base, over)
+    traj = simulate(scene, t_end=1.0, dt=dt)
+    check_finite(traj)
+    check_gaps(traj, scene)
+    P = scene.params()
+    check_energy(traj, scene, elastic=P["e"] == 1.0 and P["e_ground"] == 1.0)
+    px = P["m_box"] * traj.qd[:, 0] + P["m_jack"] * traj.qd[:, 3]
+    scale = (P["m_box"] * np.abs(traj.qd[:, 0]) + P["m_jack"] * np.abs(traj.qd[:, 3])).max()
+    assert np.abs(px - px[0]).max() <= 1e-13 * scale
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("shape, structure", [("square", "float"), ("cross", "cross")])
+@given(data=st.data())
+@PROPERTY
+def test_random_weightless_scenes_keep_momentum(shape, structure, data):
+    """No gravity, no ground: momentum is kept, energy never rises, nothing penetrates.
+
+    Impulses and contact forces act on both bodies at one point, equal and
+    opposite. Linear momentum is a linear invariant, which RK4 keeps exactly:
+    only round-off remains, relative to the momentum exchanged (1e-13 of it).
+    Angular momentum is quadratic: kept to round-off (1e-12 of its scale) in
+    free flight and by impulses, and to RK4's error, O((omega dt)^5) per step,
+    while a contact is persistent (a constrained, curved motion).
+    """
+    scene_base = base(structure)
+    over, dt = data.draw(free_scene(scene_base, shape, 0.0, False))
+    scene = jackbox.load_scene(scene_base, over)
+    traj = simulate(scene, t_end=1.0, dt=dt)
+    check_finite(traj)
+    check_gaps(traj, scene)
+    P = scene.params()
+    check_energy(traj, scene, elastic=P["e"] == 1.0)
+    linear, angular, lin_scale, ang_scale = momenta(traj, P)
+    # a persistent contact (a force all along) can exchange far more momentum than there is
+    exchanged = lin_scale + np.abs(np.diff(P["m_jack"] * traj.qd[:, 3:5], axis=0)).sum()
+    assert np.abs(linear - linear[0]).max() <= 1e-13 * exchanged
+    omega = np.abs(traj.qd[:, [2, 5]]).max() + np.abs(traj.qd[:, [0, 1, 3, 4]]).max() / P["L"]
+    allowed = 1e-12 + np.count_nonzero(resting_steps(traj)) * (omega * dt) ** 5
+    drift = np.abs(angular - angular[0]).max() / ang_scale
+    assert drift <= allowed, (drift, allowed)
+
+
+@pytest.mark.slow
+@given(data=st.data())
+@PROPERTY
+def test_random_prescribed_box_never_penetrates(data):
+    """A hand-shaken box (it does work, so no energy law) with a hexagon jack: gaps, finite.
+
+    Shaking up to amp (2 pi freq)^2 = 18 g. e >= 0.05: with e = 0 a jack that
+    lands on the moving floor chatters for seconds (half the draws; see
+    test_plastic_hexagon_on_a_tilting_floor_settles_quickly), which this test
+    would only reject, at 1 s each.
+    """
+    scene_base = base("hand")
+    speed = data.draw(log_uniform(0.1, 10.0)) * math.sqrt(9.81)
+    # the hand holds the box at the origin at t = 0
+    q, qd = data.draw(start_state(scene_base.points, 1.0, 0.1, False, speed, 0.3, box_at_origin=True))
+    over = {"amp": data.draw(st.floats(0.0, 0.5)), "freq": data.draw(st.floats(0.0, 3.0)),
+            "jack.mass": data.draw(log_uniform(0.01, 10.0)),
+            "restitution": data.draw(st.one_of(st.just(1.0), st.floats(0.05, 1.0))),
+            "initial.q": q, "initial.qd": qd}
+    scene = jackbox.load_scene(scene_base, over)
+    traj = simulate(scene, t_end=1.0, dt=data.draw(log_uniform(5e-4, 1e-2)))
+    check_finite(traj)
+    check_gaps(traj, scene)
+
+
+# --- named cases ------------------------------------------------------------------------
+
+L_F, A_F = 1.0, 0.3     # the float structure's box half-width and jack half-size
+
+
+def float_scene(**over):
+    """The weightless float structure (L = 1, w = 0.2, square jack a = 0.3) with overrides."""
+    return jackbox.load_scene(base("float"), {"gravity": 0.0} | over)
+
+
+def rel_angle_range(traj):
+    phi = traj.q[:, 5] - traj.q[:, 2]
+    return phi.min(), phi.max()
+
+
+@pytest.mark.slow
+def test_long_elastic_run_keeps_energy_over_200000_impacts():
+    """e = 1, no gravity: a fast spinning square jack in a free box, 2.7e5 impacts in 100 s.
+
+    Free flight is linear in t (RK4 exact) and an elastic impulse keeps the
+    kinetic energy exactly in exact arithmetic, so only round-off moves the
+    energy: a random walk of a few eps per impact, |E - E0| / E0 ~ eps sqrt(K).
+    Allowed: 20 eps sqrt(K) (2.3e-12 at K = 2.7e5); a bias of 1e-17 per impact
+    would exceed it. (Measured: 5e-13, about 2e-18 per impact, and it grows
+    about linearly with K here: a bias of ~eps/100 per impact.) Total momentum
+    is zero, so the bodies stay near the origin. Beyond ~1e6 impacts the run
+    stalls: the event time's resolution, 4 eps t, times the approach speed
+    exceeds the 1e-9 L contact band (reported; not tested here, it takes 10 s).
+    """
+    m_box, m_jack = 3.0, 1.0
+    vx, vy = 2000.0, 1500.0
+    scene = float_scene(**{"initial.q": [0, 0, 0.1, 0.2, -0.1, 0.5],
+                           "initial.qd": [-vx * m_jack / m_box, -vy * m_jack / m_box, 0.4, vx, vy, 4000.0]})
+    started = time.perf_counter()
+    traj = jackbox.simulate(scene, t_end=100.0, dt=1e-3, record_every=100)
+    seconds = time.perf_counter() - started
+    K = len(traj.impact_t)
+    rel = (traj.energy - traj.energy[0]) / traj.energy[0]
+    print(f"\nlong elastic run: {K} impacts, {traj.meta['n_steps']} steps in {seconds:.2f} s; "
+          f"energy drift {rel[-1]:.3g} at the end (max |.| {np.abs(rel).max():.3g}), "
+          f"{abs(rel[-1]) / K:.3g} per impact; eps sqrt(K) = {EPS * math.sqrt(K):.3g}")
+    assert K > 1e5
+    assert np.abs(rel).max() <= 20 * EPS * math.sqrt(K)
+    check_gaps(traj, scene)
+    linear, _, lin_scale, _ = momenta(traj, scene.params())
+    assert np.abs(linear).max() <= 1e-12 * lin_scale
+
+
+@pytest.mark.parametrize("ratio", [1e-3, 1.0, 1e3])
+def test_extreme_mass_ratios_give_the_one_dimensional_elastic_collision(ratio):
+    """A non-rotating jack hits the walls face-on: 1D elastic collisions, m_jack/m_box 1e-3 .. 1e3.
+
+    Both corners of the face hit together (one LCP), so nothing starts to spin,
+    and each hit swaps the velocities between (v, 0) and the 1D elastic result
+    ((m - M) v, 2 m v) / (m + M), with relative speed v: hits every 2 (L - a) / v.
+    Every hit is located where the gap is -0.5e-12 L (by design), so each
+    crossing is 1e-12 L longer than 2 (L - a). A mass ratio of 1e3 makes the
+    LCP matrix entries differ by 1e3; round-off stays at eps of v and of t
+    (1e-12 allowed after 36 hits).
+    """
+    v, m, M = 10.0, ratio, 1.0
+    scene = float_scene(**{"box.mass": M, "jack.mass": m, "restitution": 1.0,
+                           "initial.q": [0, 0, 0, 0, 0, 0], "initial.qd": [0, 0, 0, v, 0, 0]})
+    traj = jackbox.simulate(scene, t_end=5.0, dt=1e-3)
+    hits = traj.impacts
+    assert np.array_equal(hits["t"][0::2], hits["t"][1::2])          # in pairs, at one instant
+    faces = [set(pair) for pair in zip(hits["name"][0::2], hits["name"][1::2])]
+    assert faces == [{"right:0", "right:3"}, {"left:1", "left:2"}] * (len(faces) // 2) + \
+        [{"right:0", "right:3"}] * (len(faces) % 2)
+    gap = 2 * (L_F - A_F) + EVENT * L_F
+    t_hit = (gap / 2 + np.arange(len(faces)) * gap) / v
+    assert len(faces) == 36
+    np.testing.assert_allclose(hits["t"][0::2], t_hit, rtol=0, atol=1e-12)
+    # after an odd number of hits the state is the 1D result, after an even one the start's
+    n_before = np.searchsorted(hits["t"][0::2], traj.t, side="left")
+    odd = n_before % 2 == 1
+    jack = np.where(odd, (m - M) / (m + M) * v, v)
+    box = np.where(odd, 2 * m / (m + M) * v, 0.0)
+    np.testing.assert_allclose(traj.qd[:, 3], jack, rtol=0, atol=1e-12 * v)
+    np.testing.assert_allclose(traj.qd[:, 0], box, rtol=0, atol=1e-12 * v)
+    assert np.abs(traj.qd[:, [1, 4]]).max() <= 1e-12 * v
+    assert np.abs(traj.qd[:, [2, 5]]).max() <= 1e-12 * v / L_F
+    check_gaps(traj, scene)
+    check_energy(traj, scene, elastic=True)
+
+
+#: a square plate of half-size 0.98 L turns only |phi| < 0.0203 rad (a (|cos| + |sin|) <= L)
+WEDGED_SQUARE = ("float", 0.98, 0.004, (-0.0203, 0.0203))
+#: a cross of half-size 1.38 L is caught near 45 degrees: acos(1/1.38) <= phi <= asin(1/1.38)
+WEDGED_CROSS = ("cross", 1.38, math.pi / 4, (math.acos(1 / 1.38), math.asin(1 / 1.38)))
+STALL_IN_CORNER = (
+    "known bug: STALLED ('more than 10000 contact events in the step') once a jack corner is lodged "
+    "in a box corner (two persistent contacts at one vertex) while a neighbouring vertex's contact "
+    "sits at gap -T_EVENT/2 with a rate of ~1e-12: no impulse, no rest, no progress")
+
+
+@pytest.mark.parametrize("wedged, e", [
+    pytest.param(WEDGED_SQUARE, 1.0, id="square-e1"), pytest.param(WEDGED_CROSS, 1.0, id="cross-e1"),
+    pytest.param(WEDGED_SQUARE, 0.5, id="square-e0.5"), pytest.param(WEDGED_CROSS, 0.5, id="cross-e0.5"),
+    pytest.param(WEDGED_SQUARE, 0.0, id="square-e0",
+                 marks=pytest.mark.xfail(strict=True, reason=STALL_IN_CORNER)),
+    pytest.param(WEDGED_CROSS, 0.0, id="cross-e0"),
+])
+def test_jack_nearly_as_large_as_the_box_rattles_without_escaping_its_wedge(wedged, e):
+    """No gravity, a jack that cannot turn, spun at 10 rad/s: impacts close together.
+
+    Gaps at the samples cannot see a jack that passes through a wall between
+    two samples; its angle can: it must stay in the only angles where it fits.
+    The bound is the geometric one plus 1e-9 rad (gaps of 1e-9 L allowed).
+    Energy and momentum as everywhere (no outside force; kept if e = 1).
+    """
+    structure, a, phi0, wedge = wedged
+    scene = jackbox.load_scene(base(structure), {
+        "gravity": 0.0, "restitution": e, "jack.half_size": a,
+        "initial.q": [0, 0, 0, 0.001, -0.001, phi0], "initial.qd": [0, 0, 0, 0.3, 0.2, 10.0]})
+    traj = jackbox.simulate(scene, t_end=2.0, dt=1e-3)
+    assert len(traj.impact_t) > (500 if e == 1.0 else 10)
+    low, high = rel_angle_range(traj)
+    assert wedge[0] - 1e-9 <= low and high <= wedge[1] + 1e-9, (low, high, wedge)
+    check_gaps(traj, scene)
+    check_energy(traj, scene, elastic=e == 1.0)
+    linear, _, lin_scale, _ = momenta(traj, scene.params())
+    assert np.abs(linear - linear[0]).max() <= 1e-13 * lin_scale
+
+
+def grazing_run(dt, depth):
+    """A jack spinning in place whose corner 0 would reach `depth` L past the right wall.
+
+    Corner 0, at radius r = a sqrt(2), points along +x at t* = 5.5 dt, mid-step:
+    there its gap would be -depth, and at the step ends it is r (1 - cos(omega dt / 2)) - depth
+    > 0, so only a test inside the step sees the contact.
+    """
+    r, omega = A_F * math.sqrt(2.0), 10.0
+    t_star = 5.5 * dt
+    scene = float_scene(**{"box.mass": 1e6, "restitution": 1.0,
+                           "initial.q": [0, 0, 0, L_F - r + depth * L_F, 0, -math.pi / 4 - omega * t_star],
+                           "initial.qd": [0, 0, 0, 0, 0, omega]})
+    return jackbox.simulate(scene, t_end=10 * dt, dt=dt), r, omega, t_star
+
+
+@pytest.mark.parametrize("dt", [
+    1e-3,
+    pytest.param(1e-2, marks=pytest.mark.xfail(strict=True, reason=(
+        "known bug: the cubic dip test misses a grazing dip shallower than the cubic's own error, "
+        "~ r (omega dt)^4 / 384 (1e-7 L at omega dt = 0.1): the corner passes 1e-8 L into the wall"))),
+])
+def test_grazing_corner_is_hit_when_it_would_reach_into_the_wall(dt):
+    """A corner sweeping past a wall: it hits iff it would reach past it, at the analytic time.
+
+    Depth 1e-8 L (ten times the gap tolerance): one impulse, where
+    gap = -0.5e-12 L, i.e. at t* - acos(1 - (depth - 0.5e-12) L / r) / omega
+    (RK4 turns at a constant rate exactly; 1e-10 s allows for the root's
+    round-off, 1e3 s per m of gap there). Clearance 1e-8 L: no impulse.
+    """
+    traj, r, omega, t_star = grazing_run(dt, 1e-8)
+    assert list(traj.impacts["name"]) == ["right:0"]
+    t_hit = t_star - math.acos(1 - (1e-8 - 0.5e-12) * L_F / r) / omega
+    assert traj.impact_t[0] == pytest.approx(t_hit, abs=1e-10)
+    check_gaps(traj, float_scene(**{"box.mass": 1e6}))
+    miss, *_ = grazing_run(dt, -1e-8)
+    assert len(miss.impact_t) == 0
+
+
+@pytest.mark.parametrize("e", [1.0, 0.0])
+def test_corner_hit_on_a_free_box_is_one_simultaneous_impact(e):
+    """The jack's corner flies along the diagonal into the box's corner: two walls at once.
+
+    Solved together, the two impulses are equal and the pair acts along the
+    diagonal through both centres: no spin for either body, and the diagonal
+    velocities follow the 1D law with restitution e between m = 1 and M = 3.
+    Solved one after the other, the first wall would set the jack spinning.
+    """
+    v, m, M = 2.0, 1.0, 3.0
+    scene = float_scene(**{"restitution": e, "initial.q": [0, 0, 0, 0, 0, 0], "initial.qd": [0, 0, 0, v, v, 0]})
+    traj = jackbox.simulate(scene, t_end=0.5, dt=1e-3)
+    t_hit = (L_F - A_F) / v
+    first = traj.impacts[np.abs(traj.impact_t - t_hit) < 1e-12]
+    assert sorted(first["name"]) == ["right:0", "top:0"]
+    after = traj.t > first["t"].max()      # located where the gap is -0.5e-12 L: just after t_hit
+    jack = v * (m - e * M) / (m + M)
+    box = v * m * (1 + e) / (m + M)
+    np.testing.assert_allclose(traj.qd[after][:, [3, 4]], jack, rtol=0, atol=1e-13 * v)
+    np.testing.assert_allclose(traj.qd[after][:, [0, 1]], box, rtol=0, atol=1e-13 * v)
+    assert np.abs(traj.qd[:, [2, 5]]).max() <= 1e-13 * v
+    check_gaps(traj, scene)
+    check_energy(traj, scene, elastic=e == 1.0)
+
+
+def test_very_fast_jack_with_a_coarse_step_hits_at_the_analytic_times():
+    """1e4 L/s face-on with dt = 0.01 s: 70 hits per step, every one located.
+
+    Equal masses, e = 1: each hit swaps the bodies' velocities, the relative
+    speed stays v, so hit k comes at (L - a + d/2)/v + k 2(L - a + d/2)/v, with
+    d = 1e-12 L the depth where events are located. Positions reach 2500 L and
+    times 0.5 s, so both carry ~1e-16 s of round-off per hit; 1e-12 s allowed.
+    """
+    v = 1e4
+    scene = float_scene(**{"box.mass": 1.0, "jack.mass": 1.0, "restitution": 1.0,
+                           "initial.q": [0, 0, 0, 0, 0, 0], "initial.qd": [0, 0, 0, v, 0, 0]})
+    traj = jackbox.simulate(scene, t_end=0.5, dt=1e-2)
+    hits = traj.impact_t[0::2]
+    assert np.array_equal(hits, traj.impact_t[1::2])
+    gap = 2 * (L_F - A_F) + EVENT * L_F
+    t_hit = (gap / 2 + np.arange(len(hits)) * gap) / v
+    assert len(hits) == math.floor((0.5 * v - gap / 2) / gap) + 1
+    np.testing.assert_allclose(hits, t_hit, rtol=0, atol=1e-12)
+    check_energy(traj, scene, elastic=True)
+
+
+def test_very_fast_spinning_jack_with_a_coarse_step_keeps_the_invariants():
+    """1e4 L/s and 3e4 rad/s with dt = 0.01 s (300 rad per step): thousands of located impacts.
+
+    The invariants of every run: gaps, energy (elastic), momentum (1e-13 of
+    the momentum exchanged; hits here exchange 1e2 times the momentum).
+    """
+    scene = float_scene(**{"restitution": 1.0, "initial.q": [0, 0, 0.1, 0.2, -0.1, 0.5],
+                           "initial.qd": [0, 0, 0, 1e4, 7e3, 3e4]})
+    traj = jackbox.simulate(scene, t_end=0.5, dt=1e-2)
+    assert len(traj.impact_t) > 3000
+    check_gaps(traj, scene)
+    check_energy(traj, scene, elastic=True)
+    P = scene.params()
+    linear, _, lin_scale, _ = momenta(traj, P)
+    exchanged = lin_scale + np.abs(np.diff(P["m_jack"] * traj.qd[:, 3:5], axis=0)).sum()
+    assert np.abs(linear - linear[0]).max() <= 1e-13 * exchanged
+
+
+def test_elastic_drop_keeps_its_energy_for_ten_seconds():
+    """e = 1 on walls and ground, gravity: energy kept to round-off through 100+ impacts.
+
+    Flights are parabolas (RK4 exact), impulses elastic: 1e-12 of the energy's
+    scale at every step, and at the end. Horizontal momentum kept (the ground
+    pushes vertically).
+    """
+    scene = jackbox.load_scene("drop", {"restitution": 1.0, "ground_restitution": 1.0})
+    traj = jackbox.simulate(scene, t_end=10.0, dt=1e-3)
+    assert len(traj.impact_t) > 100
+    check_energy(traj, scene, elastic=True)
+    P = scene.params()
+    assert abs(traj.energy[-1] - traj.energy[0]) <= ROUND_OFF * energy_scale(traj, P)
+    px = P["m_box"] * traj.qd[:, 0] + P["m_jack"] * traj.qd[:, 3]
+    assert np.abs(px - px[0]).max() <= 1e-13 * np.abs(px).max()
+    check_gaps(traj, scene)
+
+
+def test_plastic_drop_comes_to_rest_flat_on_the_ground():
+    """e = 0 on walls and ground: the box ends flat on the ground, the jack flat on its floor.
+
+    Energy never rises (check_energy), and the end state is the rest state
+    exactly (resting contacts are projected onto gap = 0, rate = 0): box at
+    height L + w and angle 0 mod pi/2, jack a above the floor and angle 0 mod
+    pi/2, no vertical or angular speed, two ground contacts persistent.
+    Horizontally nothing stops the pair (the ground is frictionless): the
+    horizontal momentum is what it was at the start.
+    """
+    scene = jackbox.load_scene("drop", {"restitution": 0.0, "ground_restitution": 0.0})
+    traj = jackbox.simulate(scene, t_end=10.0, dt=1e-3)
+    check_energy(traj, scene)
+    check_gaps(traj, scene)
+    P = scene.params()
+    L, w, a = P["L"], P["w_box"], P["a_jack"]
+    q, qd = traj.q[-1], traj.qd[-1]
+    quarter = lambda angle: abs((angle + math.pi / 4) % (math.pi / 2) - math.pi / 4)  # noqa: E731
+    assert q[1] == pytest.approx(L + w, abs=1e-12) and quarter(q[2]) < 1e-12
+    assert q[4] - q[1] == pytest.approx(a - L, abs=1e-12) and quarter(q[5] - q[2]) < 1e-12
+    assert np.abs(qd[[1, 2, 4, 5]]).max() < 1e-12
+    changes = traj.contact_changes
+    resting = {n for n in changes["name"] if (changes["name"] == n).sum() % 2 == 1}
+    assert len({n for n in resting if n.startswith("ground")}) == 2, changes
+    px = P["m_box"] * traj.qd[:, 0] + P["m_jack"] * traj.qd[:, 3]
+    assert np.abs(px - px[0]).max() <= 1e-13 * np.abs(px).max()
+
+
+# --- known failures (reported; strict: they fail until fixed) ---------------------------
+
+@pytest.mark.xfail(strict=True, reason=(
+    "known bug: STALLED when a spinning box's centrifugal pull presses the jack into a wall or "
+    "corner: a contact touches at round-off level with no resolvable motion and neither an "
+    "impulse nor the acceleration LCP (even with every slow contact counted as at rest) moves on"))
+@pytest.mark.parametrize("structure", ["float", "cross"])
+def test_jack_carried_round_by_a_spinning_box_settles_against_the_wall(structure):
+    """A box spinning at 10 rad/s, the jack co-rotating at half-radius: it slides out and settles.
+
+    Expected: the run completes; the jack ends pressed against the wall by the
+    centrifugal force (a resting contact), never inside it.
+    """
+    w, x = 10.0, -0.5
+    a = 0.1
+    scene = jackbox.load_scene(base(structure), {
+        "box.mass": 1000.0, "jack.mass": 0.01, "jack.half_size": a, "restitution": 0.5, "gravity": 0.0,
+        "initial.q": [0, 0, 0, x, 0, 0.3], "initial.qd": [0, 0, w, 0, w * x, w]})
+    traj = jackbox.simulate(scene, t_end=1.0, dt=1e-3)
+    check_gaps(traj, scene)
+    assert len(traj.contact_t) > 0
+
+
+# (was a known bug, fixed in the kernel: kept as a regression test)
+def test_flush_face_hitting_with_one_corner_gains_no_energy():
+    """A square jack flush against the right wall, moving in at 0.2 and turning at -1 rad/s.
+
+    Corner 0 approaches the wall at 0.5 m/s, corner 3 recedes at 0.1 m/s, both
+    at gap 0. Whatever impulses follow, an impact with e = 1 cannot end with
+    more kinetic energy than it started with.
+    """
+    scene = float_scene(**{"box.mass": 1e6, "jack.mass": 1.0, "restitution": 1.0,
+                           "initial.q": [0, 0, 0, L_F - A_F, 0, 0], "initial.qd": [0, 0, 0, 0.2, 0, -1.0]})
+    P = scene.params()
+    start = 0.5 * (P["m_jack"] * 0.2 ** 2 + P["J_jack"] * 1.0 ** 2)
+    traj = jackbox.simulate(scene, t_end=1e-3, dt=1e-3)
+    assert len(traj.impact_t) >= 1
+    assert traj.energy[0] <= start * (1 + ROUND_OFF), (traj.energy[0], start)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "known bug: with e = 0 a hexagon on a slowly tilting floor rocks between its two bottom "
+    "vertices forever (impulse, REST, RELEASE every ~5 us, ~6000 events per step)"))
+def test_plastic_hexagon_on_a_tilting_floor_settles_quickly():
+    """The hand-shaken box (slow vertical shake), hexagon jack thrown in with e = 0.
+
+    Expected: it lands, comes to rest on an edge and rides the floor: a few
+    hundred events at most, and the run takes well under the 3 s allowed.
+    """
+    scene = jackbox.load_scene(base("hand"), {
+        "amp": 0.17, "freq": 0.23, "jack.mass": 0.65, "restitution": 0.0,
+        "initial.q": [0.0, 0.0, 0.0, -0.36, 0.0, 0.0], "initial.qd": [0, 0, 0, -2.85, 2.32, 0.06]})
+    traj = simulate(scene, seconds=3.0, reject_stall=False, t_end=0.95, dt=1e-3)
+    assert len(traj.impact_t) + len(traj.contact_t) < 1000
+
+
+# (was a known bug, fixed in the kernel: kept as a regression test)
+def test_first_step_with_more_events_than_the_log_records_each_sample_once(tmp_path):
+    """A jack at 1e5 L/s with dt = 0.01 s: 1428 impulses in the first step.
+
+    Run in a subprocess (the bug writes out of bounds). Expected: samples at
+    0, 0.01, 0.02 s, each once.
+    """
+    path = write_scene(tmp_path, FREE_FLOAT, "float.toml")
+    code = (f"import jackbox, json; s = jackbox.load_scene({str(path)!r}, "
+            "{'gravity': 0.0, 'box.mass': 1.0, 'jack.mass': 1.0, 'initial.q': [0, 0, 0, 0, 0, 0], "
+            "'initial.qd': [0, 0, 0, 1e5, 0, 0]}); t = jackbox.simulate(s, t_end=0.02, dt=0.01); "
+            "print(json.dumps(t.t.tolist()))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-500:]
+    assert json.loads(out.stdout) == [0.0, 0.01, 0.02]
