@@ -69,6 +69,18 @@ dt = 1e-3
 """
 
 
+def run_cli(capsys, *argv):
+    """``jackbox`` with argv -> (status, stdout, stderr); argparse exits become statuses too."""
+    from jackbox.cli import main
+
+    try:
+        status = main(list(argv))
+    except SystemExit as exc:
+        status = exc.code
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
 def write_scene(folder: Path, text: str, name: str = "scene.toml") -> Path:
     path = folder / name
     path.write_text(textwrap.dedent(text))

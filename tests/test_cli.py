@@ -20,6 +20,8 @@ import jackbox
 from jackbox.cli import main
 from jackbox.scene import builtin_scenes
 
+from .conftest import run_cli
+
 # SCENES.md, "Output: trajectory file (.npz)"
 NPZ_KEYS = {"t", "q", "qd", "energy", "impact_t", "impact_constraint", "constraint_names",
             "scene", "meta"}
@@ -34,14 +36,6 @@ def _in_tmp(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
 
 
-def run_cli(capsys, *argv):
-    """main(argv) -> (status, stdout, stderr); argparse exits become statuses too."""
-    try:
-        status = main(list(argv))
-    except SystemExit as exc:
-        status = exc.code
-    out, err = capsys.readouterr()
-    return status, out, err
 
 
 def assert_one_line_error(status, out, err):

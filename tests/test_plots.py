@@ -27,7 +27,7 @@ from jackbox.cli import main
 from jackbox.geometry import Geometry
 from jackbox.scene import contact_gaps
 
-from .conftest import PRESCRIBED, write_scene
+from .conftest import run_cli
 
 # --- helpers -------------------------------------------------------------------------------
 
@@ -77,8 +77,8 @@ def assert_not_blank(img, min_colors=50):
 
 
 @pytest.fixture(scope="module")
-def polygon_scene(tmp_path_factory):
-    return jackbox.load_scene(write_scene(tmp_path_factory.mktemp("poly"), PRESCRIBED, "hand.toml"))
+def polygon_scene(prescribed_scene):
+    return prescribed_scene   # the hexagon jack in a prescribed box
 
 
 @pytest.fixture(autouse=True)
@@ -86,13 +86,6 @@ def _in_tmp(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
 
 
-def run_cli(capsys, *argv):
-    try:
-        status = main(list(argv))
-    except SystemExit as exc:
-        status = exc.code
-    out, err = capsys.readouterr()
-    return status, out, err
 
 
 def assert_one_line_error(status, out, err, word=""):
