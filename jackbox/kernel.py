@@ -302,8 +302,8 @@ def integrate(q, qd, p, t0, dt, i_begin, i_end, n_total, record_every,
 # would turn negative is released where lam = 0.
 #
 # Scratch rows of the (SC, N_CONTACT) float array `sc` and the (SN, N_DOF) `sn`.
-_GA, _GB, _GS, _VA, _VB, _BIAS, _RHS, _LAM, _W = 0, 1, 2, 3, 4, 5, 6, 7, 8
-SC = 9
+_GA, _GB, _GS, _VA, _VB, _BIAS, _RHS, _LAM = 0, 1, 2, 3, 4, 5, 6, 7
+SC = 8
 # Event kinds for event_value/locate. Calls pass them as np.int64(...): a bare
 # literal would make Numba compile one specialisation per value.
 GAP_EVENT_KIND = 0
@@ -707,8 +707,7 @@ def first_crossing(ta, tb, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A):
     gap_rate(ta, q, qd, p, va)
     gap_rate(tb, sn[_QB], sn[_QDB], p, vb)
     ext = np.empty(2)
-    best_t = -1.0
-    best_l = 0.0
+    best_l = -1.0
     best_k = -1
     t_hi = tb
     for k in range(N_CONTACT):
@@ -742,8 +741,8 @@ def first_crossing(ta, tb, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A):
         if fl <= 0.0:
             return ta  # touching now, with no resolvable flight before the crossing
         tl, tr = locate(gap_kind, k, ta, q, qd, tl, fl, tr, fr, p, tol, ridx, m, work, jac, sc, sn, A)
-        if best_k < 0 or tl < best_t:
-            best_t, best_l, best_k = tl, tl, k
+        if best_k < 0 or tl < best_l:
+            best_l, best_k = tl, k
             t_hi = tr
     if best_k < 0:
         return -1.0
