@@ -42,6 +42,12 @@ class Function:
     outputs: list[sp.Expr]          #: flattened outputs
     shape: tuple[int, ...] | None   #: shape of `out`, or None for a scalar return
     doc: str
+    tuple_io: bool = False          #: q, qd are tuples and the outputs are returned as a tuple
+
+
+#: Functions the fused loop's free-flight path also needs in tuple form
+#: (``accel_s`` ...): floats in registers, no arrays between the RK4 stages.
+TUPLE_TWINS = ("accel", "phi", "box_motion")
 
 
 def functions(model: Model) -> list[Function]:
@@ -80,6 +86,9 @@ def functions(model: Model) -> list[Function]:
                            "(6,) the prescribed box's pose (x, y, theta) and rates."))
     fs.append(Function("energy", ("t", "q", "qd", "p"), [model.energy], None,
                        "Kinetic + gravity + [potential] energy of both bodies (a float)."))
+    fs += [Function(f"{fn.name}_s", fn.args, fn.outputs, (len(fn.outputs),),
+                    f"{fn.name}() for the free-flight loop: q, qd tuples in, a tuple out.", tuple_io=True)
+           for fn in fs if fn.name in TUPLE_TWINS]
     return fs
 
 
@@ -103,7 +112,9 @@ def emit_module(model: Model, command: str) -> str:
         if stray:
             raise CodegenError(f"{fn.name}: undeclared symbols {sorted(map(str, stray))}")
 
-    everything = [e for fn in fs for e in fn.outputs]
+    # one cse over every output; a tuple twin reuses its array function's terms
+    primary = [fn for fn in fs if not fn.tuple_io]
+    everything = [e for fn in primary for e in fn.outputs]
     temps = sp.numbered_symbols("_x", real=True)
     replacements, reduced = sp.cse(everything, symbols=temps, order="canonical")
     names = {s: local for arg in inputs.values() for s, (local, _) in arg.items()}
@@ -111,11 +122,12 @@ def emit_module(model: Model, command: str) -> str:
     printer = KernelPrinter(names)
     position = {sym: i for i, (sym, _) in enumerate(replacements)}
 
-    bodies, start = [], 0
-    for fn in fs:
-        outs = reduced[start:start + len(fn.outputs)]
+    outs_of, start = {}, 0
+    for fn in primary:
+        outs_of[fn.name] = reduced[start:start + len(fn.outputs)]
         start += len(fn.outputs)
-        bodies.append(_function(fn, outs, replacements, position, inputs, printer))
+    bodies = [_function(fn, outs_of[fn.name.removesuffix("_s") if fn.tuple_io else fn.name],
+                        replacements, position, inputs, printer) for fn in fs]
 
     digest = model_hash(model.structure)
     header = [
@@ -139,14 +151,38 @@ def emit_module(model: Model, command: str) -> str:
         f"N_CONTACT = {model.phi.shape[0]}",
         f"N_WALL_CONTACT = {model.n_wall_contacts}",
         f"PRESCRIBED = {model.box_motion is not None}",
+        f"HAS_GROUND = {model.phi.shape[0] > model.n_wall_contacts}",
         f"DOF_NAMES = {tuple(s.name for s in model.q)!r}",
         f"PARAM_NAMES = {tuple(s.name for s in model.p)!r}",
         f"CONSTRAINT_NAMES = {tuple(model.constraint_names)!r}",
         f"E_SLOT = {[s.name for s in model.p].index('e')}",
         f"E_GROUND_SLOT = {[s.name for s in model.p].index('e_ground')}",
-        f"FUNCTIONS = {tuple(fn.name for fn in fs)!r}",
+        f"FUNCTIONS = {tuple(fn.name for fn in fs) + TUPLE_HELPERS!r}",
     ]
+    bodies += _tuple_helpers(len(model.q))
     return "\n".join(header) + "\n" + "".join("\n\n" + body for body in bodies)
+
+
+#: Tuple arithmetic of length N_DOF emitted with every model (no sympy involved).
+TUPLE_HELPERS = ("tuple_of", "axpy_s", "rk4_sum_s")
+
+
+def _tuple_helpers(n: int) -> list[str]:
+    """Unrolled n-tuple helpers for the fused loop's RK4 on floats."""
+    def tup(item) -> str:
+        return "(" + ", ".join(item(i) for i in range(n)) + ("," if n == 1 else "") + ")"
+
+    return [
+        "def tuple_of(a):\n"
+        '    """The first N_DOF entries of an array as a tuple."""\n'
+        f"    return {tup(lambda i: f'a[{i}]')}\n",
+        "def axpy_s(h, x, y):\n"
+        '    """y + h x for N_DOF-tuples."""\n'
+        f"    return {tup(lambda i: f'y[{i}] + h * x[{i}]')}\n",
+        "def rk4_sum_s(y, h6, k1, k2, k3, k4):\n"
+        '    """RK4\'s update y + h6 (k1 + 2 k2 + 2 k3 + k4) for N_DOF-tuples."""\n'
+        f"    return {tup(lambda i: f'y[{i}] + h6 * (k1[{i}] + 2.0 * k2[{i}] + 2.0 * k3[{i}] + k4[{i}])')}\n",
+    ]
 
 
 def _function(fn: Function, outs, replacements, position, inputs, printer) -> str:
@@ -161,7 +197,7 @@ def _function(fn: Function, outs, replacements, position, inputs, printer) -> st
     temps = [(sym, rhs) for sym, rhs in replacements if sym in needed]
     used = set().union(*(e.free_symbols for e in outs), *(rhs.free_symbols for _, rhs in temps))
 
-    args = [a for a in _ARG_ORDER if a in fn.args] + (["out"] if fn.shape else [])
+    args = [a for a in _ARG_ORDER if a in fn.args] + (["out"] if fn.shape and not fn.tuple_io else [])
     lines = [f"def {fn.name}({', '.join(args)}):", f'    """{fn.doc}"""', "    # Unpack inputs"]
     for arg in fn.args:
         for sym, (local, slot) in inputs[arg].items():
@@ -172,6 +208,10 @@ def _function(fn: Function, outs, replacements, position, inputs, printer) -> st
     lines.append("    # Output terms")
     if fn.shape is None:
         lines.append(f"    result = {_number(printer, outs[0])}")
+    elif fn.tuple_io:
+        lines.append("    result = (")
+        lines += [f"        {_number(printer, e)}," for e in outs]
+        lines.append("    )")
     else:
         cols = fn.shape[1] if len(fn.shape) == 2 else None
         for i, e in enumerate(outs):
@@ -179,7 +219,7 @@ def _function(fn: Function, outs, replacements, position, inputs, printer) -> st
             lines.append(f"    {target} = {_number(printer, e)}")
     ops = sum(sp.count_ops(rhs) for _, rhs in temps) + sum(sp.count_ops(e) for e in outs)
     lines.append(f"    # Total ops: {ops}")
-    lines.append("    return result" if fn.shape is None else "    return")
+    lines.append("    return result" if fn.shape is None or fn.tuple_io else "    return")
     return "\n".join(lines) + "\n"
 
 

@@ -55,11 +55,12 @@ def test_edited_model_module_is_recompiled(fresh_cache, tmp_path):
     before = jackbox.simulate(scene, t_end=0.3)
     path = loader.ensure_model(scene)
     assert path.parent == fresh_cache / "models"
-    # a hand edit that keeps the header (and so the hash): gravity pushes up
+    # a hand edit that keeps the header (and so the hash): gravity pushes up, in
+    # accel() and in its tuple twin accel_s() (the free-flight loop's)
     text = path.read_text()
-    assert "_x2 = -p_g" in text.split("def accel")[1]
-    head, tail = text.split("def accel")
-    path.write_text(head + "def accel" + tail.replace("_x2 = -p_g", "_x2 = p_g", 1))
+    head, *bodies = text.split("def accel")
+    assert len(bodies) == 2 and all("_x2 = -p_g" in body for body in bodies)
+    path.write_text(head + "".join("def accel" + body.replace("_x2 = -p_g", "_x2 = p_g", 1) for body in bodies))
     after = jackbox.simulate(scene, t_end=0.3)
     assert after.meta["kernel"]["cache"] == "miss"
     assert after.q[-1, 4] > before.q[-1, 4] + 0.5      # the jack rose instead of falling
