@@ -88,7 +88,8 @@ def tolerances(run: Run, kernel) -> np.ndarray:
     impulse and becomes persistent, which ends a Zeno cascade of bounces
     (remaining flight time below 2e-7 sqrt(L/g) / (1 - e)). Speed bounds
     (the largest rate of change of any gap per unit of each rate, and of a
-    prescribed box's motion) decide which steps need the in-step dip test.
+    prescribed box's motion) decide which steps need the in-step dip test;
+    the bounding radii of the jack and the box feed the broad phase.
     """
     scene, p = run.scene, run.p
     P = dict(zip(scene.param_names, p))
@@ -104,15 +105,14 @@ def tolerances(run: Run, kernel) -> np.ndarray:
     tol[kernel.T_GAP] = GAP_TOL * L
     tol[kernel.T_EVENT] = EVENT_TOL * L
     tol[kernel.T_VREST] = REST_TOL * v_scale
+    tol[kernel.T_WALL] = L
+    tol[kernel.T_RJACK] = r_jack
+    tol[kernel.T_RBOX] = r_box
     reach = [1.0, 1.0, 1.5 * r_jack]               # x, y, theta of the jack
     if scene.prescribed:
         # sample the box's motion densely; twice the largest speed seen bounds it
-        ts = np.linspace(0.0, run.n_steps * run.dt, max(2001, 4 * run.n_steps + 1))
-        box = np.empty(6)
-        speed = 0.0
-        for t in ts[:: max(1, len(ts) // 20000)]:
-            kernel.box_motion(t, p, box)
-            speed = max(speed, math.hypot(box[3], box[4]) + abs(box[5]) * r_box)
+        samples = min(max(2001, 4 * run.n_steps + 1), 20001)
+        speed = kernel.box_speed_bound(p, run.n_steps * run.dt, samples, r_box)
         tol[kernel.T_BOXV] = 2.0 * speed
     else:
         reach = [1.0, 1.0, 1.5 * r_box] + reach
@@ -156,6 +156,11 @@ def simulate(scene: Scene | str, t_end: float | None = None, dt: float | None = 
     progress: show a progress bar (on stderr). log: a callable for status lines.
     """
     run = prepare(scene, t_end, dt, record_every, params, method)
+    return run_prepared(run, progress=progress, log=log)
+
+
+def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
+    """:func:`simulate` for a checked :class:`Run` (an ensemble member re-run in full, say)."""
     t_load = time.perf_counter()
     kernel = loader.kernel_for(run.scene, log)
     compiled = loader.compile_kernel(kernel, run.method)

@@ -31,7 +31,7 @@ caller grows the log and calls again from the returned step), ``NONFINITE``.
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 DONE = 0
 IMPACT_LOG_FULL = 1
@@ -50,37 +50,67 @@ T_GAP = 0            #: contacts closer than this take part in impacts and resti
 T_EVENT = 1          #: an event is located where gap = -T_EVENT / 2 (round-off guard)
 T_VREST = 2          #: normal speeds below this are "at rest": plastic impact, then persistent
 T_BOXV = 3           #: bound on the speed of any point of a prescribed box
-T_SPEED = 4          #: T_SPEED + i: bound on |d gap / d qd_i| (1 or a radius)
+T_WALL = 4           #: the box's inner half-width L (broad phase)
+T_RJACK = 5          #: radius of the jack's bounding circle about its centre (broad phase)
+T_RBOX = 6           #: radius of the box's outer bounding circle (broad phase, ground)
+T_SPEED = 7          #: T_SPEED + i: bound on |d gap / d qd_i| (1 or a radius); the last slots
 #: events allowed inside one step before the run stops with STALLED
 MAX_EVENTS = 10000
+#: skip the gap rows of steps whose bounding circles are far from contact
+#: (benchmarks compile a copy with False to show the gain)
+BROAD_PHASE = True
+
+
+@njit(cache=True, inline='always')
+def free_step(t, q, qd, dt, p):
+    """One classical RK4 step of ``q' = qd, qd' = accel(t, q, qd)`` on tuples.
+
+    The free-flight hot path: the state stays in registers (N_DOF-tuples), the
+    model's ``accel_s`` returns a tuple, nothing touches memory between the
+    stages. Returns ``(q, qd)`` after the step.
+    """
+    h2 = 0.5 * dt
+    a1 = accel_s(t, q, qd, p)
+    v2 = axpy_s(h2, a1, qd)
+    a2 = accel_s(t + h2, axpy_s(h2, qd, q), v2, p)
+    v3 = axpy_s(h2, a2, qd)
+    a3 = accel_s(t + h2, axpy_s(h2, v2, q), v3, p)
+    v4 = axpy_s(dt, a3, qd)
+    a4 = accel_s(t + dt, axpy_s(dt, v3, q), v4, p)
+    h6 = dt / 6.0
+    return rk4_sum_s(q, h6, qd, v2, v3, v4), rk4_sum_s(qd, h6, a1, a2, a3, a4)
 
 
 @njit(cache=True)
-def rk4_step(t, q, qd, dt, p, q_out, qd_out, work):
-    """One classical RK4 step of ``q' = qd, qd' = accel(t, q, qd)``.
+def rk4_step(t, q, qd, dt, p, q_out, qd_out):
+    """:func:`free_step` on arrays: reads q, qd; writes q_out, qd_out (they may be q and qd)."""
+    qt, vt = free_step(t, tuple_of(q), tuple_of(qd), dt, p)
+    for i in range(N_DOF):
+        q_out[i] = qt[i]
+        qd_out[i] = vt[i]
 
-    Reads q, qd; writes q_out, qd_out (they may be q and qd). ``work``: (8, N_DOF).
+
+@njit(cache=True, inline='always')
+def clearance(t, q, p, tol):
+    """A lower bound on every gap: the broad phase.
+
+    The jack's bounding circle (radius tol[T_RJACK] about its centre) against
+    the box's inner walls, and, with a ground, the box's bounding circle
+    (tol[T_RBOX]) against the ground: no gap row, one sine and one cosine.
+    q: a tuple or an array of the integrated coordinates.
     """
-    qs, vs, a1, a2, a3, a4, v2, v3 = (work[0], work[1], work[2], work[3],
-                                      work[4], work[5], work[6], work[7])
-    h2 = 0.5 * dt
-    accel(t, q, qd, p, a1)
-    for i in range(N_DOF):
-        qs[i] = q[i] + h2 * qd[i]
-        v2[i] = qd[i] + h2 * a1[i]
-    accel(t + h2, qs, v2, p, a2)
-    for i in range(N_DOF):
-        qs[i] = q[i] + h2 * v2[i]
-        v3[i] = qd[i] + h2 * a2[i]
-    accel(t + h2, qs, v3, p, a3)
-    for i in range(N_DOF):
-        qs[i] = q[i] + dt * v3[i]
-        vs[i] = qd[i] + dt * a3[i]
-    accel(t + dt, qs, vs, p, a4)
-    h6 = dt / 6.0
-    for i in range(N_DOF):
-        q_out[i] = q[i] + h6 * (qd[i] + 2.0 * v2[i] + 2.0 * v3[i] + vs[i])
-        qd_out[i] = qd[i] + h6 * (a1[i] + 2.0 * a2[i] + 2.0 * a3[i] + a4[i])
+    if PRESCRIBED:
+        box = box_motion_s(t, p)
+        xb, yb, th, xj, yj = box[0], box[1], box[2], q[0], q[1]
+    else:
+        xb, yb, th, xj, yj = q[0], q[1], q[2], q[3], q[4]
+    c, s = math.cos(th), math.sin(th)
+    dx, dy = xj - xb, yj - yb
+    u, v = c * dx + s * dy, c * dy - s * dx
+    g = tol[T_WALL] - max(abs(u), abs(v)) - tol[T_RJACK]
+    if HAS_GROUND:
+        g = min(g, yb - tol[T_RBOX])
+    return g
 
 
 @njit(cache=True)
@@ -263,7 +293,6 @@ def integrate(q, qd, p, t0, dt, i_begin, i_end, n_total, record_every,
     index ``n_rec``; impulses are logged into imp_t/imp_k from ``n_imp``.
     Returns ``(step reached, n_rec, n_imp, status)``.
     """
-    work = np.empty((8, N_DOF))
     gap = np.empty(N_CONTACT)
     rows = np.empty(N_CONTACT, np.int64)
     box = np.empty(6)
@@ -275,7 +304,7 @@ def integrate(q, qd, p, t0, dt, i_begin, i_end, n_total, record_every,
             return i, n_rec, n_imp, IMPACT_LOG_FULL
         t = t0 + i * dt
         t_next = t0 + (i + 1) * dt
-        rk4_step(t, q, qd, dt, p, q, qd, work)
+        rk4_step(t, q, qd, dt, p, q, qd)
         phi(t_next, q, p, gap)
         n_imp = resolve_impacts(t_next, q, qd, p, gap, 0.0, rows, imp_t, imp_k, n_imp)
         for d in range(N_DOF):
@@ -384,12 +413,12 @@ def contact_accel(t, q, qd, p, ridx, m, a, jac, sc, A):
 def rk4_contact(t, q, qd, dt, p, q_out, qd_out, work, ridx, m, jac, sc, A):
     """One RK4 step of the dynamics with the persistent contacts held (plain RK4 if none).
 
-    The tableau repeats :func:`rk4_step`'s on purpose: routing free flight
-    through contact_accel (four calls a step with the contact scratch arrays as
-    arguments) made every step 2-3x slower.
+    The tableau repeats :func:`free_step`'s on purpose: free flight runs on
+    tuples in registers; routing it through contact_accel (four calls a step
+    with the contact scratch arrays as arguments) made every step 2-3x slower.
     """
     if m == 0:
-        rk4_step(t, q, qd, dt, p, q_out, qd_out, work)
+        rk4_step(t, q, qd, dt, p, q_out, qd_out)
         return
     qs, vs, a1, a2, a3, a4, v2, v3 = (work[0], work[1], work[2], work[3],
                                       work[4], work[5], work[6], work[7])
@@ -642,7 +671,7 @@ def hermite(fa, fb, da, db, s):
             + (-2 * s3 + 3 * s2) * fb + (s3 - s2) * db)
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def step_reach(qd_a, qd_b, h, tol):
     """How close to contact a gap must come, at one end of a step of length h, to need a look.
 
@@ -869,6 +898,42 @@ def advance(ta, tb, q, qd, p, tol, rest, ridx, m, work, jac, sc, sn, A, ev_t, ev
 
 
 @njit(cache=True)
+def fly(t0, dt, i, i_stop, q, qd, p, tol, clear):
+    """Steps i, i+1, ... of free flight while the broad phase shows them quiet.
+
+    q, qd: tuples. ``clear`` is a lower bound on every gap at the start; each
+    step lowers it by the step's band (twice the travel bound) and only when
+    that leaves too little is the clearance computed again, so far from the
+    walls a step costs one RK4 step on floats and a speed bound. Stops before
+    the first step that might come near contact (its trial state is returned
+    so the caller need not redo it) or at i_stop. Returns
+    ``(i, q, qd, clear, q_trial, qd_trial)``.
+    """
+    half = 0.5 * tol[T_EVENT]
+    qn, vn = q, qd
+    while i < i_stop:
+        qn, vn = free_step(t0 + i * dt, q, qd, dt, p)
+        band = step_reach(qd, vn, dt, tol) - half
+        if not clear >= band:        # (also stops on a non-finite state)
+            break
+        c = clear - band
+        if c < band:
+            c = clearance(t0 + (i + 1) * dt, qn, p, tol)
+            if not c >= band:
+                break
+        q, qd, clear = qn, vn, c
+        i += 1
+    return i, q, qd, clear, qn, vn
+
+
+@njit(cache=True)
+def record_step(t, q, qd, p, n_rec, rec_t, rec_q, rec_qd, rec_energy, box, regular, next_rec, record_every):
+    """Record a sample; returns the new sample count and the next regular record step."""
+    record(t, q, qd, p, n_rec, rec_t, rec_q, rec_qd, rec_energy, box)
+    return n_rec + 1, next_rec + record_every if regular else next_rec
+
+
+@njit(cache=True)
 def integrate_exact(q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every,
                     rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, ev_kind, n_ev):
     """Method "exact": like :func:`integrate`, with every contact event located.
@@ -892,21 +957,49 @@ def integrate_exact(q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record
     ga, gb = sc[_GA], sc[_GB]
     qb, qdb = sn[_QB], sn[_QDB]
     phi(t0 + i_begin * dt, q, p, ga)
+    ga_ok = True             # ga holds the gaps of the current state
+    clear = clearance(t0 + i_begin * dt, q, p, tol)   # a lower bound on every gap now
     q0, qd0, rest0 = q.copy(), qd.copy(), rest.copy()
     half = 0.5 * tol[T_EVENT]
-    for i in range(i_begin, i_end):
+    next_rec = (i_begin // record_every + 1) * record_every
+    i = i_begin
+    while i < i_end:
+        have_trial = False
+        if BROAD_PHASE and m == 0:
+            # Free flight far from every wall: the lean loop, on floats only.
+            i_stop = min(i_end, next_rec)
+            i_fly, qt, vt, clear, qn, vn = fly(t0, dt, i, i_stop, tuple_of(q), tuple_of(qd), p, tol, clear)
+            have_trial = i_fly < i_stop      # fly stopped at a step it did not take: its trial
+            if i_fly > i:
+                for d in range(N_DOF):
+                    q[d] = qt[d]
+                    qd[d] = vt[d]
+                ga_ok = False
+                i = i_fly
+                if i == next_rec or i == n_total:
+                    n_rec, next_rec = record_step(t0 + i * dt, q, qd, p, n_rec, rec_t, rec_q, rec_qd,
+                                                  rec_energy, box, i == next_rec, next_rec, record_every)
+                if i == i_end:
+                    break
         t = t0 + i * dt
         t_next = t0 + (i + 1) * dt
-        # Fast path: no persistent contact and every gap, at both ends of the
-        # step, further from contact than the step can move it.
+        # The step with gap rows: quiet when every gap, at both ends of the
+        # step, is further from contact than the step can move it.
         quiet = False
         if m == 0:
-            rk4_step(t, q, qd, dt, p, qb, qdb, work)
+            if not have_trial:
+                qn, vn = free_step(t, tuple_of(q), tuple_of(qd), dt, p)
+            band = step_reach(qd, vn, dt, tol) - half
+            for d in range(N_DOF):
+                qb[d] = qn[d]
+                qdb[d] = vn[d]
+            if not ga_ok:
+                phi(t, q, p, ga)
+                ga_ok = True
             phi(t_next, qb, p, gb)
-            band = step_reach(qd, qdb, dt, tol)
             quiet = True
             for k in range(N_CONTACT):
-                if min(ga[k], gb[k]) + half < band:
+                if min(ga[k], gb[k]) < band:
                     quiet = False
                     break
         if quiet:
@@ -916,6 +1009,9 @@ def integrate_exact(q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record
             for k in range(N_CONTACT):
                 ga[k] = gb[k]
         else:
+            if not ga_ok:
+                phi(t, q, p, ga)
+                ga_ok = True
             q0[:] = q
             qd0[:] = qd
             rest0[:] = rest
@@ -929,10 +1025,202 @@ def integrate_exact(q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record
                 return i, n_rec, n0, IMPACT_LOG_FULL
             if status != DONE:
                 return i, n_rec, n_ev, status
+        if BROAD_PHASE:
+            clear = clearance(t_next, q, p, tol)
+        i += 1
         for d in range(N_DOF):
             if not (math.isfinite(q[d]) and math.isfinite(qd[d])):
-                return i + 1, n_rec, n_ev, NONFINITE
-        if (i + 1) % record_every == 0 or i + 1 == n_total:
-            record(t_next, q, qd, p, n_rec, rec_t, rec_q, rec_qd, rec_energy, box)
-            n_rec += 1
+                return i, n_rec, n_ev, NONFINITE
+        if i == next_rec or i == n_total:
+            n_rec, next_rec = record_step(t_next, q, qd, p, n_rec, rec_t, rec_q, rec_qd, rec_energy, box,
+                                          i == next_rec, next_rec, record_every)
     return i_end, n_rec, n_ev, DONE
+
+
+# ---------------------------------------------------------------------------
+# ensembles: many members at once, one per prange iteration
+# ---------------------------------------------------------------------------
+#
+# A member runs integrate_exact segment by segment (to each sample step, then
+# to the end) with no recording in between. Its result depends on its inputs
+# only, so any split of the members over threads, processes or machines gives
+# the same numbers bit for bit.
+
+#: tally slots of one member: impulses so far, time of the first one (NaN if none)
+TALLY_IMPULSES = 0
+TALLY_FIRST = 1
+
+
+@njit(cache=True)
+def run_segment(q, qd, rest, p, tol, dt, i, stop, rec_t, rec_q, rec_qd, rec_e, n_rec,
+                ev_t, ev_k, ev_kind, tally):
+    """Steps i..stop of one member through any number of full event logs.
+
+    Counts impulses into tally; records a sample at stop (into rec_* at n_rec;
+    on the first call, with i = 0 and n_rec = 0, also the start). Returns
+    ``(step reached, n_rec, status, ev_t, ev_k, ev_kind)``: the log arrays are
+    new ones when a single step needed a bigger log.
+    """
+    while True:
+        i, n_rec, n_ev, status = integrate_exact(q, qd, rest, p, tol, 0.0, dt, i, stop, stop, stop + 1,
+                                                 rec_t, rec_q, rec_qd, rec_e, n_rec, ev_t, ev_k, ev_kind, 0)
+        for j in range(n_ev):
+            if ev_kind[j] == IMPULSE:
+                if tally[TALLY_IMPULSES] == 0.0:
+                    tally[TALLY_FIRST] = ev_t[j]
+                tally[TALLY_IMPULSES] += 1.0
+        if status != IMPACT_LOG_FULL:
+            return i, n_rec, status, ev_t, ev_k, ev_kind
+        if n_ev == 0:    # one step has more events than the log holds
+            size = 2 * ev_t.shape[0]
+            ev_t, ev_k, ev_kind = np.empty(size), np.empty(size, np.int64), np.empty(size, np.int64)
+
+
+@njit(cache=True)
+def run_member(q0, qd0, p, tol, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
+    """One ensemble member from its start state to n_steps.
+
+    sample_steps: ascending steps in [0, n_steps] whose (6-column) state goes
+    to samp_q[s], samp_qd[s]. fin_q, fin_qd: the final state (6 columns).
+    fin: [energy, impulses, first impulse time, status, step reached].
+    """
+    q, qd = q0.copy(), qd0.copy()
+    rest = np.zeros(N_CONTACT, np.int64)
+    size = 256
+    ev_t, ev_k, ev_kind = np.empty(size), np.empty(size, np.int64), np.empty(size, np.int64)
+    rec_t, rec_e = np.empty(2), np.empty(2)
+    rec_q, rec_qd = np.empty((2, 6)), np.empty((2, 6))
+    tally = np.zeros(2)
+    tally[TALLY_FIRST] = np.nan
+    # step 0: the start, after any impulse a touching start state gets
+    i, n_rec, status, ev_t, ev_k, ev_kind = run_segment(q, qd, rest, p, tol, dt, 0, 0, rec_t, rec_q, rec_qd,
+                                                        rec_e, 0, ev_t, ev_k, ev_kind, tally)
+    s = 0
+    if s < sample_steps.shape[0] and sample_steps[s] == 0:
+        samp_q[s, :] = rec_q[0]
+        samp_qd[s, :] = rec_qd[0]
+        s += 1
+    fin_q[:] = rec_q[0]
+    fin_qd[:] = rec_qd[0]
+    fin[0] = rec_e[0]
+    while status == DONE and i < n_steps:
+        stop = sample_steps[s] if s < sample_steps.shape[0] else n_steps
+        i, n_rec, status, ev_t, ev_k, ev_kind = run_segment(q, qd, rest, p, tol, dt, i, stop, rec_t, rec_q,
+                                                            rec_qd, rec_e, 1, ev_t, ev_k, ev_kind, tally)
+        if status != DONE:
+            break
+        if s < sample_steps.shape[0] and stop == sample_steps[s]:
+            samp_q[s, :] = rec_q[1]
+            samp_qd[s, :] = rec_qd[1]
+            s += 1
+        fin_q[:] = rec_q[1]
+        fin_qd[:] = rec_qd[1]
+        fin[0] = rec_e[1]
+    fin[1] = tally[TALLY_IMPULSES]
+    fin[2] = tally[TALLY_FIRST]
+    fin[3] = status
+    fin[4] = i
+
+
+@njit(cache=True, parallel=True)
+def run_members(Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
+    """:func:`run_member` for every row of Q0, QD0, P, TOL, in parallel (prange)."""
+    for j in prange(Q0.shape[0]):
+        run_member(Q0[j], QD0[j], P[j], TOL[j], dt, n_steps, sample_steps, samp_q[j], samp_qd[j],
+                   fin_q[j], fin_qd[j], fin[j])
+
+
+@njit(cache=True)
+def run_twins(q0, qd0, dq, dqd, p, tol, dt, n_steps, renorm_steps, scale, stretch, fin):
+    """Twin trajectories of one member for the finite-time Lyapunov exponent.
+
+    The twin starts at (q0 + dq, qd0 + dqd). Every renorm_steps steps the
+    separation d (state difference divided by ``scale``, per coordinate) is
+    measured, log(d / d0) goes to stretch[k], and the twin is put back at
+    distance d0 along the current separation (Benettin's renormalisation).
+    fin: [impulses of the reference, status, step reached].
+    """
+    n = N_DOF
+    q, qd = q0.copy(), qd0.copy()
+    qt, qdt = q0 + dq, qd0 + dqd
+    d0 = 0.0
+    for d in range(n):
+        d0 += (dq[d] / scale[d]) ** 2 + (dqd[d] / scale[n + d]) ** 2
+    d0 = math.sqrt(d0)
+    rest, rest_t = np.zeros(N_CONTACT, np.int64), np.zeros(N_CONTACT, np.int64)
+    size = 256
+    ev = (np.empty(size), np.empty(size, np.int64), np.empty(size, np.int64))
+    ev2 = (np.empty(size), np.empty(size, np.int64), np.empty(size, np.int64))
+    rec_t, rec_e = np.empty(2), np.empty(2)
+    rec_q, rec_qd = np.empty((2, 6)), np.empty((2, 6))
+    tally, tally_t = np.zeros(2), np.zeros(2)
+    i = 0
+    i2 = 0
+    status = DONE
+    n_rec = 0
+    k = 0
+    while i < n_steps:
+        stop = min(i + renorm_steps, n_steps)
+        i, _, status, e0, e1, e2 = run_segment(q, qd, rest, p, tol, dt, i, stop, rec_t, rec_q, rec_qd, rec_e,
+                                               n_rec, ev[0], ev[1], ev[2], tally)
+        ev = (e0, e1, e2)
+        if status != DONE:
+            break
+        i2, _, status, e0, e1, e2 = run_segment(qt, qdt, rest_t, p, tol, dt, i2, stop, rec_t, rec_q, rec_qd,
+                                                rec_e, n_rec, ev2[0], ev2[1], ev2[2], tally_t)
+        ev2 = (e0, e1, e2)
+        n_rec = 1
+        if status != DONE:
+            break
+        dist = 0.0
+        for d in range(n):
+            dist += ((qt[d] - q[d]) / scale[d]) ** 2 + ((qdt[d] - qd[d]) / scale[n + d]) ** 2
+        dist = math.sqrt(dist)
+        if not dist > 0.0:      # the twins met (round-off): no stretch to measure, restart the twin
+            stretch[k] = np.nan
+            for d in range(n):
+                qt[d] = q[d] + dq[d]
+                qdt[d] = qd[d] + dqd[d]
+        else:
+            stretch[k] = math.log(dist / d0)
+            f = d0 / dist
+            for d in range(n):
+                qt[d] = q[d] + f * (qt[d] - q[d])
+                qdt[d] = qd[d] + f * (qdt[d] - qd[d])
+        rest_t[:] = rest
+        k += 1
+    for j in range(k, stretch.shape[0]):
+        stretch[j] = np.nan
+    fin[0] = tally[TALLY_IMPULSES]
+    fin[1] = status
+    fin[2] = i
+
+
+@njit(cache=True, parallel=True)
+def run_twin_members(Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin):
+    """:func:`run_twins` for every member, in parallel (prange)."""
+    for j in prange(Q0.shape[0]):
+        run_twins(Q0[j], QD0[j], DQ[j], DQD[j], P[j], TOL[j], dt, n_steps, renorm_steps, scale,
+                  stretch[j], fin[j])
+
+
+@njit(cache=True)
+def box_speed_bound(p, t_end, n_samples, r_box):
+    """Largest speed of any point of a prescribed box over [0, t_end], sampled at n_samples times."""
+    speed = 0.0
+    box = np.empty(6)
+    for j in range(n_samples):
+        box_motion(t_end * j / max(n_samples - 1, 1), p, box)
+        speed = max(speed, math.hypot(box[3], box[4]) + abs(box[5]) * r_box)
+    return speed
+
+
+@njit(cache=True)
+def start_gaps(Q0, P):
+    """(n,) the smallest gap of each member's start state (negative: inside a wall)."""
+    out = np.empty(Q0.shape[0])
+    gap = np.empty(N_CONTACT)
+    for j in range(Q0.shape[0]):
+        phi(0.0, Q0[j], P[j], gap)
+        out[j] = gap.min()
+    return out

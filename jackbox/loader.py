@@ -134,8 +134,8 @@ def kernel_for(scene: Scene, log=None) -> ModuleType:
 def compile_kernel(module: ModuleType, method: str | None = None, n_rec: int = 2) -> dict:
     """Make sure the kernel's machine code for `method` is ready: compiled now or loaded from cache.
 
-    method: ``"exact"``, ``"naive"`` or None for both. Each method's loop is
-    compiled on first use only (the exact one takes most of the compile time).
+    method: ``"exact"``, ``"naive"``, ``"ensemble"`` (the parallel member
+    loops) or None for the two methods. Each is compiled on first use only.
     Returns ``{"seconds": ..., "cache": "hit" | "miss" | "memory" | "disabled"}``:
     loaded from Numba's cache, compiled now, compiled earlier in this process,
     or not compiled at all (``NUMBA_DISABLE_JIT=1``).
@@ -144,6 +144,7 @@ def compile_kernel(module: ModuleType, method: str | None = None, n_rec: int = 2
     if numba.config.DISABLE_JIT:
         return {"seconds": 0.0, "cache": "disabled"}
     wanted = {"exact": ("integrate_exact",), "naive": ("integrate",),
+              "ensemble": ("run_members", "run_twin_members", "start_gaps"),
               None: ("integrate", "integrate_exact")}[method]
     loops = [getattr(module, name) for name in wanted]
     if all(f.signatures for f in loops):
@@ -161,6 +162,15 @@ def compile_kernel(module: ModuleType, method: str | None = None, n_rec: int = 2
                                *log, np.zeros(C + 1, np.int64), 0)
         if module.PRESCRIBED:
             module.box_motion(0.0, p, np.zeros(6))
+    if "run_members" in wanted:
+        # zero members: compiles the parallel loops without running the model
+        Q, P = np.zeros((0, n)), np.zeros((0, module.N_PARAM))
+        T = np.zeros((0, module.T_SPEED + n))
+        module.run_members(Q, Q, P, T, 1.0, 1, np.zeros(0, np.int64), np.zeros((0, 0, 6)),
+                           np.zeros((0, 0, 6)), np.zeros((0, 6)), np.zeros((0, 6)), np.zeros((0, 5)))
+        module.run_twin_members(Q, Q, Q, Q, P, T, 1.0, 1, 1, np.ones(2 * n), np.zeros((0, 1)),
+                                np.zeros((0, 3)))
+        module.start_gaps(Q, P)
     hits = sum(sum(f.stats.cache_hits.values()) for f in loops)
     return {"seconds": time.perf_counter() - t0, "cache": "hit" if hits else "miss"}
 

@@ -404,3 +404,42 @@ def write_timeseries(traj: Trajectory, path: str | Path, geometry: Geometry | No
 
 def write_comparison(trajs: list[Trajectory], labels: list[str], path: str | Path, title: str = "") -> Path:
     return save_figure(comparison(trajs, labels, title), path)
+
+
+def chaos(study) -> Figure:
+    """Separation growth of the twin pairs over time, and the spread of their FTLE estimates."""
+    fig = Figure(figsize=(11, 4.2), layout="constrained")
+    ax, hx = fig.subplots(1, 2, width_ratios=(1.6, 1))
+    t, growth = study.times, study.growth / np.log(10.0)       # log10(d / d0)
+    ok = np.all(np.isfinite(growth), axis=1)
+    g = growth[ok]
+    if len(g):
+        for row in g[: min(len(g), 30)]:
+            ax.plot(t, row, color="0.75", lw=0.6)
+        lo, med, hi = np.percentile(g, [10, 50, 90], axis=0)
+        ax.fill_between(t, lo, hi, color="C0", alpha=0.25, lw=0, label="10-90% of pairs")
+        ax.plot(t, med, color="C0", lw=2, label="median")
+        lam = np.nanmean(study.ftle)
+        ax.plot(t, lam * t / np.log(10.0), "--", color="C3", lw=1.2,
+                label=f"mean FTLE {lam:.3g} 1/s")
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel("log10 separation growth, d / d0")
+    ax.set_title(f"{study.spec.scene.name}: {len(study.stretch)} twin pairs, d0 = {study.spec.d0:g}, "
+                 f"renormalised every {study.spec.renorm_steps * study.spec.dt:g} s", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper left", fontsize=9)
+    f = study.ftle[np.isfinite(study.ftle)]
+    if len(f):
+        hx.hist(f, bins=min(60, max(10, len(f) // 20)), color="C0", alpha=0.8)
+        hx.axvline(f.mean(), color="C3", lw=1.2, label=f"mean {f.mean():.3g}")
+        hx.axvline(np.median(f), color="k", lw=1, ls=":", label=f"median {np.median(f):.3g}")
+        hx.legend(fontsize=9)
+    hx.set_xlabel("finite-time Lyapunov exponent (1/s)")
+    hx.set_ylabel("members")
+    hx.set_title(f"over {study.spec.t_end:g} s" + (f"; std {f.std(ddof=1):.3g}" if len(f) > 1 else ""),
+                 fontsize=10)
+    return fig
+
+
+def write_chaos(study, path: str | Path) -> Path:
+    return save_figure(chaos(study), path)

@@ -1,0 +1,511 @@
+"""Ensembles and chaos studies: many members of one scene, on every core (or a Dask cluster).
+
+A study is a static, picklable :class:`EnsembleSpec` (the scene, the run, how
+the members differ, the seed) and a pure function of a member's index:
+:func:`member_inputs` builds member ``i``'s start state and parameters from
+``(seed, i)`` alone, and the compiled kernel runs members independently
+(``prange``). So any split of the members, over threads, chunks, processes or
+machines, gives the same numbers bit for bit; :func:`run_chunk` is the unit of
+work that a progress bar or a Dask task sees.
+
+Members differ by
+
+* a perturbation of the start state (``perturb={"theta_jack": 1e-6}``):
+  uniform in ``[-s, s]`` per named coordinate or rate, random from
+  ``numpy.random.default_rng([seed, i])``, or on an even grid;
+* parameter values (``sweep={"e": (0.5, 1.0)}``): evenly spaced over the
+  members for one parameter, a square grid for two; ``restitution`` sets both
+  ``e`` and ``e_ground``. Parameters are runtime values: nothing recompiles.
+
+Per member the study keeps only what it needs: the final state, the impulse
+count, the time of the first impulse, the status, and the state at chosen
+sample times. :meth:`Ensemble.trajectory` re-runs one member in full.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__, api, loader
+from . import kernel as K
+from .errors import SimulationError
+from .fileio import write_atomic
+from .scene import COORDS, RATES, Scene, load_scene
+
+#: members per kernel call when the progress bar is on (each call is parallel inside)
+CHUNK_MEMBERS = 1024
+STATUS_NAMES = {K.DONE: "done", K.NONFINITE: "non-finite", K.STALLED: "stalled"}
+#: a perturbed start may touch a wall, but not reach into it by more than this times L
+START_TOL = 1e-9
+
+
+@dataclass(frozen=True, eq=False)
+class EnsembleSpec:
+    """Everything that defines a study; members are functions of (spec, index)."""
+
+    scene: Scene
+    n: int
+    dt: float
+    n_steps: int
+    seed: int
+    perturb: tuple[tuple[str, float], ...]          #: (coordinate or rate name, half-width)
+    grid: bool                                      #: perturbations on a grid, not random
+    params: tuple[tuple[str, float], ...]           #: values for every member
+    sweep: tuple[tuple[str, float, float], ...]     #: (parameter, first, last)
+    sample_steps: tuple[int, ...]
+    renorm_steps: int = 0                           #: chaos study: steps between renormalisations
+    d0: float = 0.0                                 #: chaos study: twin separation (scaled)
+
+    @property
+    def t_end(self) -> float:
+        return self.n_steps * self.dt
+
+    @property
+    def sample_times(self) -> np.ndarray:
+        return np.asarray(self.sample_steps, float) * self.dt
+
+
+def plan(scene, n: int, perturb: dict[str, float] | None = None, params: dict[str, float] | None = None,
+         sweep: dict[str, tuple[float, float]] | None = None, t_end: float | None = None,
+         dt: float | None = None, seed: int = 0, grid: bool = False, samples=None) -> EnsembleSpec:
+    """Check a study's arguments and describe it (nothing runs)."""
+    scene = load_scene(scene)
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise SimulationError(f"n must be a positive integer, got {n!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise SimulationError(f"seed must be a non-negative integer, got {seed!r}")
+    run = api.prepare(scene, t_end, dt, params=params)
+    names = [*COORDS, *RATES]
+    movable = scene.dof_names + tuple(f"{c}_dot" for c in scene.dof_names)
+    pert = []
+    for name, scale in (perturb or {}).items():
+        if name not in names:
+            raise SimulationError(f"perturb: unknown coordinate {name!r} (one of {', '.join(names)})")
+        if name not in movable:
+            raise SimulationError(f"perturb: {name!r} is not a degree of freedom: the box's motion is prescribed")
+        if not (math.isfinite(scale) and scale >= 0):
+            raise SimulationError(f"perturb: the size for {name!r} must be a finite number >= 0, got {scale}")
+        pert.append((name, float(scale)))
+    if grid and pert and _side(n, len(pert)) is None:
+        raise SimulationError(f"a grid over {len(pert)} coordinates needs n = m^{len(pert)} members, got n = {n}")
+    sw = []
+    for name, rng in (sweep or {}).items():
+        slots = _param_slots(scene, name)
+        try:
+            lo, hi = (float(v) for v in rng)
+        except (TypeError, ValueError):
+            raise SimulationError(f"sweep: {name} needs (first, last), got {rng!r}") from None
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            raise SimulationError(f"sweep: {name} bounds must be finite")
+        if name in ("e", "e_ground", "restitution") and not (0 <= min(lo, hi) and max(lo, hi) <= 1):
+            raise SimulationError(f"sweep: restitution must lie in [0, 1], got {lo}..{hi}")
+        del slots
+        sw.append((name, lo, hi))
+    if len(sw) > 2:
+        raise SimulationError("sweep: at most two parameters (a line or a grid)")
+    if len(sw) == 2 and _side(n, 2) is None:
+        raise SimulationError(f"a sweep over two parameters is a square grid: n must be m^2, got n = {n}")
+    steps = _sample_steps(samples, run)
+    return EnsembleSpec(scene=run.scene, n=int(n), dt=run.dt, n_steps=run.n_steps, seed=int(seed),
+                        perturb=tuple(pert), grid=bool(grid),
+                        params=tuple((k, float(v)) for k, v in (params or {}).items()),
+                        sweep=tuple(sw), sample_steps=steps)
+
+
+def member_inputs(spec: EnsembleSpec, start: int, stop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Start coordinates, rates (integrated DOFs) and parameters of members start..stop-1."""
+    run = _base_run(spec)
+    idx = np.arange(start, stop)
+    m = len(idx)
+    Q0, QD0, P = np.tile(run.q, (m, 1)), np.tile(run.qd, (m, 1)), np.tile(run.p, (m, 1))
+    if spec.perturb:
+        k = len(spec.perturb)
+        if spec.grid:
+            side = _side(spec.n, k)
+            u = np.stack(np.unravel_index(idx, (side,) * k), axis=1).astype(float)
+            u = 2.0 * u / (side - 1) - 1.0 if side > 1 else np.zeros_like(u)
+        else:
+            u = np.array([np.random.default_rng([spec.seed, i]).uniform(-1.0, 1.0, k) for i in idx])
+        dofs = spec.scene.dof_names
+        for j, (name, scale) in enumerate(spec.perturb):
+            target, col = (QD0, dofs.index(name[:-4])) if name.endswith("_dot") else (Q0, dofs.index(name))
+            target[:, col] += scale * u[:, j]
+    if spec.sweep:
+        if len(spec.sweep) == 1:
+            coords = [idx]
+            side = spec.n
+        else:
+            side = _side(spec.n, 2)
+            coords = list(np.unravel_index(idx, (side, side)))
+        for (name, lo, hi), c in zip(spec.sweep, coords):
+            values = lo + (hi - lo) * c / (side - 1) if side > 1 else np.full(m, lo)
+            for slot in _param_slots(spec.scene, name):
+                P[:, slot] = values
+    return Q0, QD0, P
+
+
+def run_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray]:
+    """Run members start..stop-1; every array returned has stop - start rows.
+
+    The unit of work of a progress bar or a Dask task. Loads (compiling on
+    first use in this process, else from Numba's cache) the scene's kernel.
+    """
+    kernel = _kernel(spec)
+    Q0, QD0, P = member_inputs(spec, start, stop)
+    TOL = _tolerances(spec, kernel, P)
+    _check_starts(spec, kernel, Q0, P, start)
+    m, S = stop - start, len(spec.sample_steps)
+    samp_q, samp_qd = np.zeros((m, S, 6)), np.zeros((m, S, 6))
+    fin_q, fin_qd, fin = np.zeros((m, 6)), np.zeros((m, 6)), np.zeros((m, 5))
+    kernel.run_members(Q0, QD0, P, TOL, spec.dt, spec.n_steps, np.asarray(spec.sample_steps, np.int64),
+                       samp_q, samp_qd, fin_q, fin_qd, fin)
+    return {"q": fin_q, "qd": fin_qd, "energy": fin[:, 0], "impacts": fin[:, 1].astype(np.int64),
+            "first_impact_t": fin[:, 2], "status": fin[:, 3].astype(np.int64),
+            "steps": fin[:, 4].astype(np.int64), "samples_q": samp_q, "samples_qd": samp_qd,
+            "q0": Q0, "qd0": QD0, "params": P}
+
+
+def run_chaos_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray]:
+    """Twin trajectories of members start..stop-1: log stretch per renormalisation interval."""
+    kernel = _kernel(spec)
+    Q0, QD0, P = member_inputs(spec, start, stop)
+    TOL = _tolerances(spec, kernel, P)
+    _check_starts(spec, kernel, Q0, P, start)
+    scale = _chaos_scale(spec)
+    n_dof = Q0.shape[1]
+    # the twin's offset: a random unit direction in the scaled state space, from (seed, i)
+    direction = np.array([np.random.default_rng([spec.seed, i, 1]).standard_normal(2 * n_dof)
+                          for i in range(start, stop)])
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    offset = spec.d0 * direction * scale
+    m = stop - start
+    n_intervals = -(-spec.n_steps // spec.renorm_steps)
+    stretch, fin = np.zeros((m, n_intervals)), np.zeros((m, 3))
+    kernel.run_twin_members(Q0, QD0, np.ascontiguousarray(offset[:, :n_dof]),
+                            np.ascontiguousarray(offset[:, n_dof:]), P, TOL, spec.dt, spec.n_steps,
+                            spec.renorm_steps, scale, stretch, fin)
+    return {"stretch": stretch, "impacts": fin[:, 0].astype(np.int64), "status": fin[:, 1].astype(np.int64),
+            "steps": fin[:, 2].astype(np.int64), "q0": Q0, "qd0": QD0, "params": P, "offset": offset}
+
+
+@dataclass
+class Ensemble:
+    """The result of :func:`ensemble`: one row per member."""
+
+    spec: EnsembleSpec
+    q: np.ndarray                 #: (n, 6) final coordinates (a prescribed box's from its motion)
+    qd: np.ndarray                #: (n, 6) final rates
+    energy: np.ndarray            #: (n,) final energy
+    impacts: np.ndarray           #: (n,) contact impulses
+    first_impact_t: np.ndarray    #: (n,) time of the first impulse (NaN: none)
+    status: np.ndarray            #: (n,) 0 done, 2 non-finite, 3 stalled
+    steps: np.ndarray             #: (n,) steps completed
+    samples_q: np.ndarray         #: (n, S, 6) state at spec.sample_times
+    samples_qd: np.ndarray
+    q0: np.ndarray                #: (n, DOF) start coordinates of the integrated DOFs
+    qd0: np.ndarray
+    params: np.ndarray            #: (n, P) parameter values
+    meta: dict
+
+    @property
+    def n(self) -> int:
+        return len(self.q)
+
+    @property
+    def sample_times(self) -> np.ndarray:
+        return self.spec.sample_times
+
+    def trajectory(self, i: int, record_every: int = 1):
+        """Member i in full (the same kernel, the same numbers), as a Trajectory."""
+        if not 0 <= i < self.n:
+            raise SimulationError(f"member {i} is not in this ensemble of {self.n}")
+        return member_trajectory(self.spec, i, record_every)
+
+    def summary(self) -> str:
+        ok = self.status == K.DONE
+        hit = np.isfinite(self.first_impact_t)
+        rate = self.meta.get("member_steps_per_second")
+        lines = [f"{self.spec.scene.name}: {self.n} members over {self.spec.t_end:g} s "
+                 f"(dt {self.spec.dt:g}, {self.spec.n_steps} steps each)"]
+        if rate:
+            lines.append(f"  {rate:.3g} member-steps/s on {self.meta['threads']} thread(s), "
+                         f"{self.meta['run_seconds']:.2f} s")
+        lines.append(f"  impulses per member: median {np.median(self.impacts):.0f}, "
+                     f"range {self.impacts.min()}..{self.impacts.max()}")
+        if hit.any():
+            lines.append(f"  first impulse: {hit.sum()} members, median t = {np.median(self.first_impact_t[hit]):.4g} s")
+        if not ok.all():
+            lines.append(f"  {np.sum(~ok)} members stopped early: "
+                         + ", ".join(f"{np.sum(self.status == s)} {STATUS_NAMES.get(s, s)}"
+                                     for s in np.unique(self.status[~ok])))
+        return "\n".join(lines)
+
+    def save(self, path) -> Path:
+        arrays = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                  if isinstance(getattr(self, f.name), np.ndarray)}
+        return _save(path, arrays | {"sample_t": self.sample_times}, self.spec, self.meta)
+
+
+@dataclass
+class ChaosStudy:
+    """The result of :func:`chaos`: log stretches of twin pairs, and the FTLE estimate."""
+
+    spec: EnsembleSpec
+    times: np.ndarray             #: (K,) ends of the renormalisation intervals
+    stretch: np.ndarray           #: (n, K) log(d / d0) over each interval (NaN: not reached)
+    impacts: np.ndarray
+    status: np.ndarray
+    steps: np.ndarray
+    q0: np.ndarray
+    qd0: np.ndarray
+    params: np.ndarray
+    offset: np.ndarray            #: (n, 2 DOF) the twin's start offset (coordinates, then rates)
+    meta: dict
+
+    @property
+    def growth(self) -> np.ndarray:
+        """(n, K) log of the separation an unrenormalised pair would have: cumulative stretches."""
+        return np.cumsum(self.stretch, axis=1)
+
+    @property
+    def ftle(self) -> np.ndarray:
+        """(n,) finite-time Lyapunov exponent of each member, 1/s (NaN for failed members)."""
+        done = self.status == K.DONE
+        value = np.nansum(self.stretch, axis=1) / self.spec.t_end
+        return np.where(done, value, np.nan)
+
+    def summary(self) -> str:
+        f = self.ftle[np.isfinite(self.ftle)]
+        lines = [f"{self.spec.scene.name}: {len(self.stretch)} twin pairs over {self.spec.t_end:g} s, "
+                 f"d0 = {self.spec.d0:g}, renormalised every {self.spec.renorm_steps * self.spec.dt:g} s"]
+        if len(f):
+            lo, med, hi = np.percentile(f, [10, 50, 90])
+            lines.append(f"  FTLE: mean {f.mean():.4g} 1/s, std {f.std(ddof=1) if len(f) > 1 else 0.0:.3g}, "
+                         f"median {med:.4g} (10-90%: {lo:.4g}..{hi:.4g})")
+        rate = self.meta.get("member_steps_per_second")
+        if rate:
+            lines.append(f"  {rate:.3g} member-steps/s (two trajectories per member) on "
+                         f"{self.meta['threads']} thread(s), {self.meta['run_seconds']:.2f} s")
+        return "\n".join(lines)
+
+    def save(self, path) -> Path:
+        arrays = {"times": self.times, "stretch": self.stretch, "growth": self.growth, "ftle": self.ftle,
+                  "impacts": self.impacts, "status": self.status, "steps": self.steps, "q0": self.q0,
+                  "qd0": self.qd0, "params": self.params, "offset": self.offset}
+        return _save(path, arrays, self.spec, self.meta)
+
+
+def ensemble(scene, n: int, perturb=None, params=None, t_end=None, dt=None, seed: int = 0, *,
+             sweep=None, grid: bool = False, samples=None, chunk: int | None = None, threads: int | None = None,
+             scheduler: str | None = None, dask_local: int | None = None, progress: bool = False,
+             log=None) -> Ensemble:
+    """Run n members of a scene in parallel; see the module docstring for how they differ.
+
+    samples: times (s) at which to keep every member's state (rounded to whole steps).
+    threads: Numba threads in this process (default: all cores). scheduler:
+    ``"tcp://host:port"`` of a running Dask scheduler; dask_local: start a
+    Dask LocalCluster with that many worker processes instead. Results are
+    the same bit for bit whichever way the members are split.
+    """
+    spec = plan(scene, n, perturb, params, sweep, t_end, dt, seed, grid, samples)
+    parts, meta = _execute(run_chunk, spec, chunk, threads, scheduler, dask_local, progress, log)
+    return Ensemble(spec=spec, meta=meta, **parts)
+
+
+def chaos(scene, n: int, d0: float = 1e-8, renorm: float | None = None, perturb=None, params=None, t_end=None,
+          dt=None, seed: int = 0, *, sweep=None, grid: bool = False, chunk: int | None = None,
+          threads: int | None = None, scheduler: str | None = None, dask_local: int | None = None,
+          progress: bool = False, log=None) -> ChaosStudy:
+    """Finite-time Lyapunov exponents of n members from renormalised twin trajectories.
+
+    Each member (start state perturbed as in :func:`ensemble`) runs with a
+    twin at scaled distance d0 in a random direction; every ``renorm`` seconds
+    (default: 100 steps) the separation's growth is logged and the twin is
+    pulled back to d0 along it. Coordinates are scaled by the box's inner
+    half-width L (angles by 1 rad), rates by sqrt(g L) (or L / t_end).
+
+    Across an impact the twins can lie on two sides of it for a moment, which
+    shows as a jump of the separation; a small d0 keeps that window short.
+    """
+    spec = plan(scene, n, perturb, params, sweep, t_end, dt, seed, grid, None)
+    if not (math.isfinite(d0) and 0 < d0 < 1e-2):
+        raise SimulationError(f"d0 must be a small positive number (below 1e-2), got {d0}")
+    renorm_steps = 100 if renorm is None else round(float(renorm) / spec.dt)
+    if not 1 <= renorm_steps <= spec.n_steps:
+        raise SimulationError(f"renorm must be between dt ({spec.dt:g} s) and t_end ({spec.t_end:g} s), got {renorm}")
+    spec = dataclasses.replace(spec, renorm_steps=int(renorm_steps), d0=float(d0))
+    parts, meta = _execute(run_chaos_chunk, spec, chunk, threads, scheduler, dask_local, progress, log,
+                           steps_per_member=2 * spec.n_steps)
+    k = parts["stretch"].shape[1]
+    times = np.minimum(np.arange(1, k + 1) * spec.renorm_steps, spec.n_steps) * spec.dt
+    return ChaosStudy(spec=spec, times=times, meta=meta, **parts)
+
+
+def member_trajectory(spec: EnsembleSpec, i: int, record_every: int = 1):
+    """Member i of a study run in full through :func:`jackbox.simulate`'s loop."""
+    q0, qd0, p = (a[0] for a in member_inputs(spec, i, i + 1))
+    run = dataclasses.replace(_base_run(spec), p=p, q=q0, qd=qd0, record_every=int(record_every))
+    return api.run_prepared(run)
+
+
+# ---------------------------------------------------------------------------
+
+
+def _execute(fn, spec, chunk, threads, scheduler, dask_local, progress, log, steps_per_member=None):
+    """Run fn over every member in chunks, here or on Dask; concatenate the parts in order."""
+    import numba
+
+    n = spec.n
+    steps_per_member = spec.n_steps if steps_per_member is None else steps_per_member
+    t_load = time.perf_counter()
+    compiled = _compile(spec)
+    load_seconds = time.perf_counter() - t_load
+    if chunk is None:
+        chunk = CHUNK_MEMBERS if (progress or scheduler or dask_local) else n
+        if scheduler or dask_local:
+            chunk = max(64, min(chunk, -(-n // 32)))
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise SimulationError(f"chunk must be a positive integer, got {chunk!r}")
+    bounds = [(a, min(a + chunk, n)) for a in range(0, n, chunk)]
+    t0 = time.perf_counter()
+    if scheduler or dask_local:
+        from .distributed import run_on_dask
+
+        parts = run_on_dask(fn, spec, bounds, address=scheduler, n_workers=dask_local,
+                            threads_per_worker=threads or 1, progress=progress, log=log)
+        used = f"dask {scheduler or f'local, {dask_local} workers'}"
+        n_threads = None
+    else:
+        old = numba.get_num_threads()
+        if threads is not None:
+            if not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
+                raise SimulationError(f"threads must be between 1 and {numba.config.NUMBA_NUM_THREADS}, got {threads}")
+            numba.set_num_threads(threads)
+        n_threads = numba.get_num_threads()
+        bar = _progress(n, progress)
+        parts = []
+        try:
+            for a, b in bounds:
+                parts.append(fn(spec, a, b))
+                if bar is not None:
+                    bar.update(b - a)
+        finally:
+            numba.set_num_threads(old)
+            if bar is not None:
+                bar.close()
+        used = "this process"
+    seconds = time.perf_counter() - t0
+    merged = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+    meta = {"jackbox": __version__, "scene": spec.scene.name, "n": n, "seed": spec.seed, "dt": spec.dt,
+            "t_end": spec.t_end, "n_steps": spec.n_steps, "chunk": chunk, "where": used, "threads": n_threads,
+            "run_seconds": seconds, "load_seconds": load_seconds, "kernel_cache": compiled["cache"],
+            "member_steps_per_second": n * steps_per_member / seconds if seconds > 0 else None,
+            "perturb": dict(spec.perturb), "grid": spec.grid, "params": dict(spec.params),
+            "sweep": {k: [lo, hi] for k, lo, hi in spec.sweep},
+            "model_hash": loader.model_hash(spec.scene.structure()), "scene_tables": spec.scene.raw}
+    if spec.renorm_steps:
+        meta |= {"d0": spec.d0, "renorm_steps": spec.renorm_steps}
+    return merged, meta
+
+
+def _kernel(spec: EnsembleSpec):
+    return loader.kernel_for(spec.scene)
+
+
+def _compile(spec: EnsembleSpec) -> dict:
+    kernel = _kernel(spec)
+    return loader.compile_kernel(kernel, "ensemble")
+
+
+def _base_run(spec: EnsembleSpec) -> api.Run:
+    return api.prepare(spec.scene, spec.t_end, spec.dt, params=dict(spec.params))
+
+
+def _tolerances(spec: EnsembleSpec, kernel, P: np.ndarray) -> np.ndarray:
+    """One tolerance row per member (they depend on the parameters: sizes, g, the box's speed)."""
+    run = _base_run(spec)
+    rows, inverse = np.unique(P, axis=0, return_inverse=True)
+    tols = np.array([api.tolerances(dataclasses.replace(run, p=row), kernel) for row in rows])
+    return np.ascontiguousarray(tols[inverse.ravel()])
+
+
+def _check_starts(spec: EnsembleSpec, kernel, Q0, P, start: int) -> None:
+    gaps = kernel.start_gaps(Q0, P)
+    L = P[:, spec.scene.param_names.index("L")]
+    bad = np.flatnonzero(gaps < -START_TOL * L)
+    if len(bad):
+        i = bad[0]
+        raise SimulationError(
+            f"{spec.scene.name}: member {start + i}'s perturbed start reaches {-gaps[i]:.3g} into a wall "
+            f"or the ground ({len(bad)} such members in members {start}..{start + len(Q0) - 1}); "
+            f"use smaller perturbations")
+
+
+def _chaos_scale(spec: EnsembleSpec) -> np.ndarray:
+    P = spec.scene.params() | dict(spec.params)
+    L, g = P["L"], abs(P["g"])
+    v = math.sqrt(g * L) if g > 0 else L / spec.t_end
+    dofs = spec.scene.dof_names
+    lengths = [1.0 if name.startswith("theta") else L for name in dofs]
+    rates = [v / L if name.startswith("theta") else v for name in dofs]
+    return np.array(lengths + rates)
+
+
+def _param_slots(scene: Scene, name: str) -> list[int]:
+    if name == "restitution":
+        return [scene.param_names.index("e"), scene.param_names.index("e_ground")]
+    if name not in scene.param_names:
+        raise SimulationError(f"sweep: unknown parameter {name!r} (parameters: restitution, "
+                              f"{', '.join(scene.param_names)})")
+    return [scene.param_names.index(name)]
+
+
+def _side(n: int, k: int) -> int | None:
+    side = round(n ** (1.0 / k))
+    for s in (side - 1, side, side + 1):
+        if s >= 1 and s ** k == n:
+            return s
+    return None
+
+
+def _sample_steps(samples, run: api.Run) -> tuple[int, ...]:
+    if samples is None:
+        return ()
+    times = np.atleast_1d(np.asarray(samples, float))
+    if not np.all(np.isfinite(times)) or times.min(initial=0.0) < 0 or times.max(initial=0.0) > run.n_steps * run.dt * (1 + 1e-12):
+        raise SimulationError(f"samples must be times between 0 and t_end = {run.n_steps * run.dt:g} s")
+    return tuple(sorted({int(round(t / run.dt)) for t in times}))
+
+
+def _save(path, arrays: dict, spec: EnsembleSpec, meta: dict) -> Path:
+    import io
+
+    path = Path(path)
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays, scene=np.array(spec.scene.text),
+                        meta=np.array(json.dumps(meta, default=_json_default)))
+    write_atomic(path, buf.getvalue())
+    return path
+
+
+def _json_default(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def _progress(total: int, enabled: bool):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="member", unit_scale=True, delay=0.5, leave=False)
