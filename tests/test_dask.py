@@ -1,0 +1,251 @@
+"""Ensembles on Dask: a real cluster of worker processes on loopback gives the results of one
+process bit for bit, loses no member when a worker is killed mid-chunk, and reports a bad
+scheduler address in one line."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import signal
+import socket
+import threading
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+distributed = pytest.importorskip("distributed")
+
+from jackbox import distributed as jd  # noqa: E402
+from jackbox.errors import SimulationError  # noqa: E402
+
+
+@dataclasses.dataclass(frozen=True)
+class ToySpec:
+    seed: int
+    delay: float = 0.0          # seconds per chunk: slow enough to kill a worker mid-chunk
+    marker_dir: str | None = None
+
+
+def toy_chunk(spec: ToySpec, start: int, stop: int) -> dict[str, np.ndarray]:
+    """A stand-in for run_chunk: each member's numbers depend only on its index and the seed.
+
+    With a marker_dir it writes ``<start>.<pid>.<attempt>.start`` on entry and the same name
+    with ``.done`` on return, so a test can see which process ran (or died in) which chunk.
+    """
+    attempt = f"{start}.{os.getpid()}.{uuid.uuid4().hex[:8]}"
+    if spec.marker_dir:
+        Path(spec.marker_dir, attempt + ".start").touch()
+    time.sleep(spec.delay)
+    members = np.arange(start, stop)
+    x = np.stack([np.random.default_rng([spec.seed, i]).standard_normal(3) for i in members])
+    if spec.marker_dir:
+        Path(spec.marker_dir, attempt + ".done").touch()
+    return {"member": members, "x": x, "hit": x[:, 0] > 0}
+
+
+def short_chunk(spec: ToySpec, start: int, stop: int) -> dict[str, np.ndarray]:
+    """A broken chunk function: one row short."""
+    return {"x": np.zeros(stop - start - 1)}
+
+
+def threads_chunk(spec: ToySpec, start: int, stop: int) -> dict[str, np.ndarray]:
+    """The Numba threads a chunk was given, once per member."""
+    import numba
+
+    return {"threads": np.full(stop - start, numba.get_num_threads())}
+
+
+def chunks(n: int, size: int) -> list[tuple[int, int]]:
+    return [(s, min(s + size, n)) for s in range(0, n, size)]
+
+
+def assert_same(parts: list[dict], whole: dict):
+    """The chunks joined are `whole` bit for bit (NaNs included)."""
+    assert sorted(parts[0]) == sorted(whole)
+    for name in whole:
+        joined = np.concatenate([p[name] for p in parts])
+        assert (joined.dtype, joined.shape) == (whole[name].dtype, whole[name].shape), name
+        assert joined.tobytes() == whole[name].tobytes(), name
+
+
+def local_cluster(**kw):
+    kw = {"n_workers": 2, "threads_per_worker": 1, "processes": True, "host": "127.0.0.1",
+          **jd.QUIET_HTTP} | kw
+    return distributed.LocalCluster(**kw)
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """Two worker processes of one thread each, shared by the tests that do not kill workers."""
+    with local_cluster() as cluster, distributed.Client(cluster, set_as_default=False) as client:
+        yield cluster, client
+
+
+def test_results_equal_one_process_bit_for_bit(cluster):
+    spec = ToySpec(seed=11, delay=0.05)
+    bounds = chunks(50, 7)                      # a short last chunk too
+    out = jd.run_on_dask(toy_chunk, spec, bounds, address=cluster[0].scheduler_address,
+                         progress=False)
+    assert [len(r["member"]) for r in out] == [stop - start for start, stop in bounds]
+    assert_same(out, toy_chunk(spec, 0, 50))
+
+
+@pytest.fixture(scope="module")
+def study():
+    """A small shaken study that reaches the first impulses (near t = 1.06 s)."""
+    from jackbox import ensemble
+
+    return ensemble.plan("shaken", 40, perturb={"theta_jack": 1e-2, "x_jack_dot": 0.1}, t_end=1.5,
+                         samples=[0.5, 1.0], seed=4)
+
+
+def test_run_chunk_on_dask_equals_one_process(cluster, study):
+    from jackbox import ensemble
+
+    whole = ensemble.run_chunk(study, 0, study.n)
+    assert whole["impacts"].min() > 0                  # the impact code ran
+    client = cluster[1]
+    before = jd.worker_compile_stats(client)
+    bounds = chunks(study.n, 5)
+    out = jd.run_on_dask(ensemble.run_chunk, study, bounds, address=cluster[0].scheduler_address,
+                         progress=False)
+    assert_same(out, whole)
+    # every chunk ran once; a worker loaded the kernel (from the disk cache the run above
+    # filled) on its first chunk only, and kept it for the next ones
+    after = jd.worker_compile_stats(client)
+    calls = {w: after[w]["calls"] - before[w]["calls"] for w in after}
+    assert sum(calls.values()) == len(bounds)
+    for w, stats in after.items():
+        loads = stats["compiling_calls"] - before[w]["compiling_calls"]
+        assert loads == (1 if calls[w] and not before[w]["kernels"] else 0), stats
+        assert stats["kernels"] == (1 if calls[w] or before[w]["kernels"] else 0), stats
+
+
+def test_ensemble_with_a_scheduler_equals_one_process(cluster, study):
+    from jackbox import ensemble
+
+    kw = dict(perturb={"theta_jack": 1e-2, "x_jack_dot": 0.1}, t_end=1.5, samples=[0.5, 1.0], seed=4)
+    here = ensemble.ensemble("shaken", 40, **kw)
+    there = ensemble.ensemble("shaken", 40, **kw, scheduler=cluster[0].scheduler_address, chunk=8)
+    for name in ("q", "qd", "energy", "impacts", "first_impact_t", "status", "samples_q", "params"):
+        assert getattr(there, name).tobytes() == getattr(here, name).tobytes(), name
+
+
+def test_run_chaos_chunk_on_dask_equals_one_process(cluster, study):
+    from jackbox import ensemble
+
+    spec = dataclasses.replace(study, renorm_steps=100, d0=1e-8)
+    whole = ensemble.run_chaos_chunk(spec, 0, spec.n)
+    out = jd.run_on_dask(ensemble.run_chaos_chunk, spec, chunks(spec.n, 15),
+                         address=cluster[0].scheduler_address, progress=False)
+    assert_same(out, whole)
+
+
+def test_local_cluster_is_started_and_closed(capsys):
+    import psutil
+
+    before = {p.pid for p in psutil.Process().children(recursive=True)}
+    messages = []
+    spec = ToySpec(seed=3)
+    out = jd.run_on_dask(toy_chunk, spec, chunks(20, 6), n_workers=2, log=messages.append)
+    assert_same(out, toy_chunk(spec, 0, 20))
+    assert any("local cluster of 2 worker processes" in m for m in messages)
+    # no worker or nanny process outlives the call
+    deadline = time.monotonic() + 10
+    while {p.pid for p in psutil.Process().children(recursive=True)} - before:
+        assert time.monotonic() < deadline, "worker processes left running"
+        time.sleep(0.1)
+
+
+def test_a_killed_worker_loses_no_member(tmp_path):
+    """SIGKILL a worker in the middle of a chunk: the scheduler runs the chunk again elsewhere,
+    the nanny starts a new worker, and every member comes back exactly once."""
+    spec = ToySpec(seed=5, delay=0.4, marker_dir=str(tmp_path))
+    bounds = chunks(64, 4)                      # 16 chunks of 0.4 s on 2 workers: ~3 s of work
+    killed = {}
+
+    def kill_a_busy_worker(pids):
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            names = {p.name for p in tmp_path.iterdir()}
+            busy = [n[:-6] for n in names if n.endswith(".start") and n[:-6] + ".done" not in names
+                    and int(n.split(".")[1]) in pids]
+            if any(n.endswith(".done") for n in names) and busy:
+                # the latest to start: the furthest from its end, so surely killed mid-chunk
+                attempt = max(busy, key=lambda a: (tmp_path / (a + ".start")).stat().st_mtime)
+                killed.update(attempt=attempt, pid=int(attempt.split(".")[1]),
+                              done=sum(n.endswith(".done") for n in names))
+                os.kill(killed["pid"], signal.SIGKILL)
+                return
+            time.sleep(0.02)
+
+    with local_cluster() as cluster, distributed.Client(cluster, set_as_default=False) as client:
+        pids = client.run(os.getpid)            # {worker address: pid}
+        killer = threading.Thread(target=kill_a_busy_worker, args=(set(pids.values()),))
+        killer.start()
+        out = jd.run_on_dask(toy_chunk, spec, bounds, address=cluster.scheduler_address,
+                             progress=False)
+        killer.join()
+        client.wait_for_workers(2, timeout=30)  # the nanny has started a new worker
+        after = client.run(os.getpid)
+
+    assert killed, "no chunk finished, or no worker was busy"
+    assert killed["done"] < len(bounds)         # work remained when the worker died
+    assert killed["pid"] not in after.values() and len(after) == 2
+    # the chunk it was running was not finished by it, and was run to the end by another worker
+    names = {p.name for p in tmp_path.iterdir()}
+    assert killed["attempt"] + ".done" not in names
+    start = killed["attempt"].split(".")[0]
+    assert any(n.startswith(start + ".") and n.endswith(".done") for n in names)
+    assert_same(out, toy_chunk(ToySpec(seed=5), 0, 64))
+
+
+def test_numba_threads_are_the_worker_cores_over_its_tasks(cluster):
+    import numba
+
+    address = cluster[0].scheduler_address   # workers of one thread: one chunk at a time
+    for cores, expected in [(1, 1), (2, min(2, numba.config.NUMBA_NUM_THREADS))]:
+        out = jd.run_on_dask(threads_chunk, ToySpec(seed=0), chunks(4, 2), address=address,
+                             threads_per_worker=cores, progress=False)
+        assert {int(t) for r in out for t in r["threads"]} == {expected}
+
+
+def test_a_result_that_does_not_cover_its_chunk_is_refused(cluster):
+    with pytest.raises(SimulationError, match=r"short_chunk\(0, 5\) returned 'x' with 4 rows, not 5"):
+        jd.run_on_dask(short_chunk, ToySpec(seed=0), [(0, 5)], address=cluster[0].scheduler_address,
+                       progress=False)
+
+
+def test_bounds_are_checked():
+    with pytest.raises(SimulationError, match="given twice"):
+        jd.run_on_dask(toy_chunk, ToySpec(seed=0), [(0, 5), (0, 5)])
+    with pytest.raises(SimulationError, match="bad chunk bounds"):
+        jd.run_on_dask(toy_chunk, ToySpec(seed=0), [(5, 5)])
+    with pytest.raises(SimulationError, match="n_workers must be a positive integer, got 0"):
+        jd.run_on_dask(toy_chunk, ToySpec(seed=0), [(0, 5)], n_workers=0)
+
+
+def test_a_scheduler_that_does_not_answer_is_named():
+    with socket.socket() as s:                  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        address = f"tcp://127.0.0.1:{s.getsockname()[1]}"
+    t0 = time.monotonic()
+    with pytest.raises(SimulationError, match=f"no Dask scheduler answered at {address} within 1 s"):
+        jd.run_on_dask(toy_chunk, ToySpec(seed=0), [(0, 5)], address=address, connect_timeout=1)
+    assert time.monotonic() - t0 < 10
+
+
+def test_a_malformed_address_is_named():
+    with pytest.raises(SimulationError, match="bad Dask scheduler address 'nonsense::'"):
+        jd.run_on_dask(toy_chunk, ToySpec(seed=0), [(0, 5)], address="nonsense::", connect_timeout=1)
+
+
+def test_missing_distributed_says_what_to_install(monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "distributed", None)   # import distributed -> ImportError
+    with pytest.raises(SimulationError, match=r'pip install "jackbox\[dask\]"'):
+        jd.run_on_dask(toy_chunk, ToySpec(seed=0), [(0, 5)])
