@@ -23,6 +23,7 @@ declared inputs.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import sympy as sp
@@ -126,8 +127,13 @@ def emit_module(model: Model, command: str) -> str:
     for fn in primary:
         outs_of[fn.name] = reduced[start:start + len(fn.outputs)]
         start += len(fn.outputs)
-    bodies = [_function(fn, outs_of[fn.name.removesuffix("_s") if fn.tuple_io else fn.name],
-                        replacements, position, inputs, printer) for fn in fs]
+    bodies = []
+    for fn in fs:
+        outs = outs_of[fn.name.removesuffix("_s") if fn.tuple_io else fn.name]
+        if fn.name == "accel_s":
+            bodies += _accel_split(fn, outs, replacements, position, inputs, printer, {model.t, *model.p})
+        else:
+            bodies.append(_function(fn, outs, replacements, position, inputs, printer))
 
     digest = model_hash(model.structure)
     header = [
@@ -157,7 +163,7 @@ def emit_module(model: Model, command: str) -> str:
         f"CONSTRAINT_NAMES = {tuple(model.constraint_names)!r}",
         f"E_SLOT = {[s.name for s in model.p].index('e')}",
         f"E_GROUND_SLOT = {[s.name for s in model.p].index('e_ground')}",
-        f"FUNCTIONS = {tuple(fn.name for fn in fs) + TUPLE_HELPERS!r}",
+        f"FUNCTIONS = {tuple(fn.name for fn in fs) + ('accel_time_s',) + TUPLE_HELPERS!r}",
     ]
     bodies += _tuple_helpers(len(model.q))
     return "\n".join(header) + "\n" + "".join("\n\n" + body for body in bodies)
@@ -185,8 +191,8 @@ def _tuple_helpers(n: int) -> list[str]:
     ]
 
 
-def _function(fn: Function, outs, replacements, position, inputs, printer) -> str:
-    # Intermediate terms this function needs, transitively, in cse order.
+def _needed(outs, replacements, position) -> list[tuple[sp.Symbol, sp.Expr]]:
+    """The intermediate terms that `outs` need, transitively, in cse order."""
     needed: set[sp.Symbol] = set()
     stack = [s for e in outs for s in e.free_symbols if s in position]
     while stack:
@@ -194,24 +200,93 @@ def _function(fn: Function, outs, replacements, position, inputs, printer) -> st
         if sym not in needed:
             needed.add(sym)
             stack.extend(s for s in replacements[position[sym]][1].free_symbols if s in position)
-    temps = [(sym, rhs) for sym, rhs in replacements if sym in needed]
+    return [(sym, rhs) for sym, rhs in replacements if sym in needed]
+
+
+def _accel_split(fn: Function, outs, replacements, position, inputs, printer, time_symbols) -> list[str]:
+    """``accel_time_s(t, p)`` and ``accel_s(t, q, qd, p, tt)``: accel's terms of t and p alone apart.
+
+    RK4 evaluates accel at three times a step (t, t + dt/2 twice, t + dt), and
+    t + dt is the next step's t: terms that depend on the time and the
+    parameters only (a shaking force's sine, 1/m) are computed once per stage
+    time by ``accel_time_s`` and passed in as the tuple ``tt``. Sums and
+    products are regrouped so that their time-only factors form one term.
+    """
+    temps = _needed(outs, replacements, position)
+    timed: set[sp.Symbol] = set()
+    for sym, rhs in temps:
+        if rhs.free_symbols <= time_symbols | timed:
+            timed.add(sym)
+    pool = time_symbols | timed
+    new: dict[sp.Expr, sp.Symbol] = {}
+
+    def is_time(e) -> bool:
+        return bool(e.free_symbols) and e.free_symbols <= pool
+
+    def hoist(e):
+        if e.is_Atom:
+            return e
+        if is_time(e):
+            if e not in new:
+                new[e] = sp.Symbol(f"_t{len(new)}", real=True)
+                printer.names[new[e]] = new[e].name
+            return new[e]
+        if isinstance(e, (sp.Add, sp.Mul)):
+            fixed = [a for a in e.args if is_time(a) or a.is_number]
+            rest = [hoist(a) for a in e.args if not (is_time(a) or a.is_number)]
+            if any(not a.is_number for a in fixed):     # one term for the time-only part
+                return e.func(hoist(e.func(*fixed)), *rest)
+            return e.func(*fixed, *rest)
+        return e.func(*(hoist(a) for a in e.args))
+
+    state = [(sym, hoist(rhs)) for sym, rhs in temps if sym not in timed]
+    outs = [hoist(e) for e in outs]
+    refs = set().union(*(e.free_symbols for e in outs), *(rhs.free_symbols for _, rhs in state))
+    frontier = [sym for sym, _ in temps if sym in timed and sym in refs]
+    frontier += [sym for sym in new.values() if sym in refs]
+    time_fn = Function("accel_time_s", ("t", "p"), [], (len(frontier),),
+                       "accel()'s terms of t and the parameters alone, once per stage time.", tuple_io=True)
+    time_defs = [(sym, rhs) for sym, rhs in temps if sym in timed] + [(sym, e) for e, sym in new.items()]
+    head = _function(time_fn, frontier, time_defs, None, inputs, printer, temps=time_defs)
+    unpack = [f"    {printer.doprint(sym)} = tt[{i}]" for i, sym in enumerate(frontier)]
+    fn = dataclasses.replace(fn, doc="accel() for the free-flight loop: q, qd tuples and tt = accel_time_s(t, p) "
+                                     "in, a tuple out.")
+    body = _function(fn, outs, state, None, inputs, printer, temps=state, extra_args=("tt",), unpack=unpack)
+    return [head, body]
+
+
+def _function(fn: Function, outs, replacements, position, inputs, printer, *, temps=None,
+              extra_args=(), unpack=()) -> str:
+    if temps is None:
+        temps = _needed(outs, replacements, position)
+    else:   # given (already in order): keep only those the outputs need
+        defined = {sym: rhs for sym, rhs in temps}
+        keep, stack = set(), [s for e in outs for s in e.free_symbols if s in defined]
+        while stack:
+            sym = stack.pop()
+            if sym not in keep:
+                keep.add(sym)
+                stack.extend(s for s in defined[sym].free_symbols if s in defined)
+        temps = [(sym, rhs) for sym, rhs in temps if sym in keep]
     used = set().union(*(e.free_symbols for e in outs), *(rhs.free_symbols for _, rhs in temps))
 
-    args = [a for a in _ARG_ORDER if a in fn.args] + (["out"] if fn.shape and not fn.tuple_io else [])
+    args = [a for a in _ARG_ORDER if a in fn.args] + list(extra_args) + (
+        ["out"] if fn.shape and not fn.tuple_io else [])
     lines = [f"def {fn.name}({', '.join(args)}):", f'    """{fn.doc}"""', "    # Unpack inputs"]
     for arg in fn.args:
         for sym, (local, slot) in inputs[arg].items():
             if sym in used and slot:
                 lines.append(f"    {local} = {slot}")
+    lines += list(unpack)
     lines.append(f"    # Intermediate terms ({len(temps)})")
     lines += [f"    {printer.doprint(sym)} = {printer.doprint(rhs)}" for sym, rhs in temps]
     lines.append("    # Output terms")
     if fn.shape is None:
         lines.append(f"    result = {_number(printer, outs[0])}")
     elif fn.tuple_io:
-        lines.append("    result = (")
+        lines.append("    result = (" if outs else "    result = ()")
         lines += [f"        {_number(printer, e)}," for e in outs]
-        lines.append("    )")
+        lines += ["    )"] if outs else []
     else:
         cols = fn.shape[1] if len(fn.shape) == 2 else None
         for i, e in enumerate(outs):

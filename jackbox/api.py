@@ -14,6 +14,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
 
 from . import __version__, loader
@@ -163,6 +164,8 @@ def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
     """:func:`simulate` for a checked :class:`Run` (an ensemble member re-run in full, say)."""
     t_load = time.perf_counter()
     kernel = loader.kernel_for(run.scene, log)
+    if log and not numba.config.DISABLE_JIT and not loader.is_cached(kernel, run.method):
+        log(f"compiling the {run.method} kernel of {run.scene.name} (first use only) ...")
     compiled = loader.compile_kernel(kernel, run.method)
     load_seconds = time.perf_counter() - t_load
 

@@ -365,7 +365,12 @@ def _execute(fn, spec, chunk, threads, scheduler, dask_local, progress, log, ste
     n = spec.n
     steps_per_member = spec.n_steps if steps_per_member is None else steps_per_member
     t_load = time.perf_counter()
-    compiled = _compile(spec)
+    kind = "chaos" if spec.renorm_steps else "ensemble"
+    kernel = _kernel(spec)
+    if log and not numba.config.DISABLE_JIT and not getattr(kernel, loader.ENTRY[kind]).signatures \
+            and not loader.is_cached(kernel, kind):
+        log(f"compiling the {kind} kernel of {spec.scene.name} (first use only: about a minute) ...")
+    compiled = loader.compile_kernel(kernel, kind)
     load_seconds = time.perf_counter() - t_load
     if chunk is None:
         chunk = CHUNK_MEMBERS if (progress or scheduler or dask_local) else n
@@ -417,11 +422,6 @@ def _execute(fn, spec, chunk, threads, scheduler, dask_local, progress, log, ste
 
 def _kernel(spec: EnsembleSpec):
     return loader.kernel_for(spec.scene)
-
-
-def _compile(spec: EnsembleSpec) -> dict:
-    kernel = _kernel(spec)
-    return loader.compile_kernel(kernel, "ensemble")
 
 
 def _base_run(spec: EnsembleSpec) -> api.Run:

@@ -9,7 +9,12 @@ caches the whole kernel, and the module's file name is a hash of all of its
 text, so cached machine code can never outlive the source it came from.
 
 The loop reads like the algorithm: integrate a step, look at the gaps, resolve
-the contacts that take part, record.
+the contacts that take part, record. Far from every wall the exact loop hands
+over to :func:`fly`, which integrates on floats only (the model's tuple
+functions ``accel_s``/``accel_time_s``) and looks at no gap row at all: a
+broad phase (bounding circles) bounds them, so a quiet step costs one RK4
+step. Ensembles (:func:`run_members`, :func:`run_twin_members`) run members
+in parallel with ``prange``, each exactly as one run of ``integrate_exact``.
 
 Impacts (``resolve_impacts``). With ``J`` the rows of ``phi_q`` of the
 contacts that take part, ``W = M^-1`` and ``v = J qd (+ phi_t)`` their normal
@@ -62,23 +67,44 @@ BROAD_PHASE = True
 
 
 @njit(cache=True, inline='always')
-def free_step(t, q, qd, dt, p):
+def rk4_stages(q, qd, dt, p, ta, tta, tm, ttm, tb, ttb):
     """One classical RK4 step of ``q' = qd, qd' = accel(t, q, qd)`` on tuples.
 
-    The free-flight hot path: the state stays in registers (N_DOF-tuples), the
-    model's ``accel_s`` returns a tuple, nothing touches memory between the
-    stages. Returns ``(q, qd)`` after the step.
+    The free-flight hot path: the state stays in registers (N_DOF-tuples) and
+    the model's ``accel_s`` returns a tuple. Stage times ta, tm, tb come with
+    their time terms ``tt* = accel_time_s(t*, p)`` (a shaking force's sine,
+    1/m), computed once per stage time. Returns ``(q, qd)`` after the step.
     """
     h2 = 0.5 * dt
-    a1 = accel_s(t, q, qd, p)
+    a1 = accel_s(ta, q, qd, p, tta)
     v2 = axpy_s(h2, a1, qd)
-    a2 = accel_s(t + h2, axpy_s(h2, qd, q), v2, p)
+    a2 = accel_s(tm, axpy_s(h2, qd, q), v2, p, ttm)
     v3 = axpy_s(h2, a2, qd)
-    a3 = accel_s(t + h2, axpy_s(h2, v2, q), v3, p)
+    a3 = accel_s(tm, axpy_s(h2, v2, q), v3, p, ttm)
     v4 = axpy_s(dt, a3, qd)
-    a4 = accel_s(t + dt, axpy_s(dt, v3, q), v4, p)
+    a4 = accel_s(tb, axpy_s(dt, v3, q), v4, p, ttb)
     h6 = dt / 6.0
     return rk4_sum_s(q, h6, qd, v2, v3, v4), rk4_sum_s(qd, h6, a1, a2, a3, a4)
+
+
+@njit(cache=True, inline='always')
+def free_step(t, q, qd, dt, p):
+    """An RK4 step of any length dt from t (stage times t, t + dt/2, t + dt), on tuples."""
+    tm, tb = t + 0.5 * dt, t + dt
+    return rk4_stages(q, qd, dt, p, t, accel_time_s(t, p), tm, accel_time_s(tm, p), tb, accel_time_s(tb, p))
+
+
+@njit(cache=True, inline='always')
+def grid_step(t, t_next, tt, q, qd, dt, p):
+    """A whole step of the time grid, t = t0 + i dt to t_next = t0 + (i + 1) dt, on tuples.
+
+    tt: the time terms at t (the previous step's at its end). Returns
+    ``(q, qd, time terms at t_next)``, so consecutive steps share them.
+    """
+    tm = t + 0.5 * dt
+    tt_next = accel_time_s(t_next, p)
+    qn, vn = rk4_stages(q, qd, dt, p, t, tt, tm, accel_time_s(tm, p), t_next, tt_next)
+    return qn, vn, tt_next
 
 
 @njit(cache=True)
@@ -413,7 +439,7 @@ def contact_accel(t, q, qd, p, ridx, m, a, jac, sc, A):
 def rk4_contact(t, q, qd, dt, p, q_out, qd_out, work, ridx, m, jac, sc, A):
     """One RK4 step of the dynamics with the persistent contacts held (plain RK4 if none).
 
-    The tableau repeats :func:`free_step`'s on purpose: free flight runs on
+    The tableau repeats :func:`rk4_stages`'s on purpose: free flight runs on
     tuples in registers; routing it through contact_accel (four calls a step
     with the contact scratch arrays as arguments) made every step 2-3x slower.
     """
@@ -672,6 +698,15 @@ def hermite(fa, fb, da, db, s):
 
 
 @njit(cache=True, inline='always')
+def speed_bound(qd, tol):
+    """A bound on how fast any gap can change at rates qd (a tuple or an array)."""
+    s = tol[T_BOXV]
+    for d in range(N_DOF):
+        s += abs(qd[d]) * tol[T_SPEED + d]
+    return s
+
+
+@njit(cache=True, inline='always')
 def step_reach(qd_a, qd_b, h, tol):
     """How close to contact a gap must come, at one end of a step of length h, to need a look.
 
@@ -681,12 +716,7 @@ def step_reach(qd_a, qd_b, h, tol):
     most a unit rate can move any gap, plus the prescribed box's speed); the
     band is twice the half, for the speed's change within the step.
     """
-    sa = tol[T_BOXV]
-    sb = tol[T_BOXV]
-    for d in range(N_DOF):
-        sa += abs(qd_a[d]) * tol[T_SPEED + d]
-        sb += abs(qd_b[d]) * tol[T_SPEED + d]
-    return h * max(sa, sb) + tol[T_GAP]
+    return h * max(speed_bound(qd_a, tol), speed_bound(qd_b, tol)) + tol[T_GAP]
 
 
 @njit(cache=True)
@@ -909,19 +939,29 @@ def fly(t0, dt, i, i_stop, q, qd, p, tol, clear):
     so the caller need not redo it) or at i_stop. Returns
     ``(i, q, qd, clear, q_trial, qd_trial)``.
     """
-    half = 0.5 * tol[T_EVENT]
+    margin = tol[T_GAP] - 0.5 * tol[T_EVENT]
     qn, vn = q, qd
+    tt = accel_time_s(t0 + i * dt, p)
+    sa = speed_bound(qd, tol)
     while i < i_stop:
-        qn, vn = free_step(t0 + i * dt, q, qd, dt, p)
-        band = step_reach(qd, vn, dt, tol) - half
+        t_next = t0 + (i + 1) * dt
+        qn, vn, tt_next = grid_step(t0 + i * dt, t_next, tt, q, qd, dt, p)
+        sb = speed_bound(vn, tol)
+        band = dt * max(sa, sb) + margin      # step_reach(qd, vn, dt, tol) - T_EVENT / 2
         if not clear >= band:        # (also stops on a non-finite state)
             break
-        c = clear - band
-        if c < band:
-            c = clearance(t0 + (i + 1) * dt, qn, p, tol)
-            if not c >= band:
-                break
-        q, qd, clear = qn, vn, c
+        if BROAD_PHASE:
+            c = clear - band
+            if c < band:
+                c = clearance(t_next, qn, p, tol)
+        else:                        # every gap row, every step
+            g = phi_s(t_next, qn, p)
+            c = g[0]
+            for k in range(1, N_CONTACT):
+                c = min(c, g[k])
+        if not c >= band:
+            break
+        q, qd, clear, tt, sa = qn, vn, c, tt_next, sb
         i += 1
     return i, q, qd, clear, qn, vn
 
@@ -958,14 +998,14 @@ def integrate_exact(q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record
     qb, qdb = sn[_QB], sn[_QDB]
     phi(t0 + i_begin * dt, q, p, ga)
     ga_ok = True             # ga holds the gaps of the current state
-    clear = clearance(t0 + i_begin * dt, q, p, tol)   # a lower bound on every gap now
+    clear = clearance(t0 + i_begin * dt, q, p, tol) if BROAD_PHASE else ga.min()   # a bound on every gap
     q0, qd0, rest0 = q.copy(), qd.copy(), rest.copy()
     half = 0.5 * tol[T_EVENT]
     next_rec = (i_begin // record_every + 1) * record_every
     i = i_begin
     while i < i_end:
         have_trial = False
-        if BROAD_PHASE and m == 0:
+        if m == 0:
             # Free flight far from every wall: the lean loop, on floats only.
             i_stop = min(i_end, next_rec)
             i_fly, qt, vt, clear, qn, vn = fly(t0, dt, i, i_stop, tuple_of(q), tuple_of(qd), p, tol, clear)
@@ -988,7 +1028,7 @@ def integrate_exact(q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record
         quiet = False
         if m == 0:
             if not have_trial:
-                qn, vn = free_step(t, tuple_of(q), tuple_of(qd), dt, p)
+                qn, vn, _ = grid_step(t, t_next, accel_time_s(t, p), tuple_of(q), tuple_of(qd), dt, p)
             band = step_reach(qd, vn, dt, tol) - half
             for d in range(N_DOF):
                 qb[d] = qn[d]
@@ -1025,8 +1065,7 @@ def integrate_exact(q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record
                 return i, n_rec, n0, IMPACT_LOG_FULL
             if status != DONE:
                 return i, n_rec, n_ev, status
-        if BROAD_PHASE:
-            clear = clearance(t_next, q, p, tol)
+        clear = clearance(t_next, q, p, tol) if BROAD_PHASE else ga.min()
         i += 1
         for d in range(N_DOF):
             if not (math.isfinite(q[d]) and math.isfinite(qd[d])):

@@ -134,8 +134,9 @@ def kernel_for(scene: Scene, log=None) -> ModuleType:
 def compile_kernel(module: ModuleType, method: str | None = None, n_rec: int = 2) -> dict:
     """Make sure the kernel's machine code for `method` is ready: compiled now or loaded from cache.
 
-    method: ``"exact"``, ``"naive"``, ``"ensemble"`` (the parallel member
-    loops) or None for the two methods. Each is compiled on first use only.
+    method: ``"exact"``, ``"naive"``, ``"ensemble"`` or ``"chaos"`` (the
+    parallel member loops) or None for the two methods. Each is compiled on
+    first use only.
     Returns ``{"seconds": ..., "cache": "hit" | "miss" | "memory" | "disabled"}``:
     loaded from Numba's cache, compiled now, compiled earlier in this process,
     or not compiled at all (``NUMBA_DISABLE_JIT=1``).
@@ -144,7 +145,7 @@ def compile_kernel(module: ModuleType, method: str | None = None, n_rec: int = 2
     if numba.config.DISABLE_JIT:
         return {"seconds": 0.0, "cache": "disabled"}
     wanted = {"exact": ("integrate_exact",), "naive": ("integrate",),
-              "ensemble": ("run_members", "run_twin_members", "start_gaps"),
+              "ensemble": ("run_members", "start_gaps"), "chaos": ("run_twin_members", "start_gaps"),
               None: ("integrate", "integrate_exact")}[method]
     loops = [getattr(module, name) for name in wanted]
     if all(f.signatures for f in loops):
@@ -168,11 +169,24 @@ def compile_kernel(module: ModuleType, method: str | None = None, n_rec: int = 2
         T = np.zeros((0, module.T_SPEED + n))
         module.run_members(Q, Q, P, T, 1.0, 1, np.zeros(0, np.int64), np.zeros((0, 0, 6)),
                            np.zeros((0, 0, 6)), np.zeros((0, 6)), np.zeros((0, 6)), np.zeros((0, 5)))
-        module.run_twin_members(Q, Q, Q, Q, P, T, 1.0, 1, 1, np.ones(2 * n), np.zeros((0, 1)),
-                                np.zeros((0, 3)))
-        module.start_gaps(Q, P)
+    if "run_twin_members" in wanted:
+        Q, P = np.zeros((0, n)), np.zeros((0, module.N_PARAM))
+        module.run_twin_members(Q, Q, Q, Q, P, np.zeros((0, module.T_SPEED + n)), 1.0, 1, 1, np.ones(2 * n),
+                                np.zeros((0, 1)), np.zeros((0, 3)))
+    if "start_gaps" in wanted:
+        module.start_gaps(np.zeros((0, n)), np.zeros((0, module.N_PARAM)))
     hits = sum(sum(f.stats.cache_hits.values()) for f in loops)
     return {"seconds": time.perf_counter() - t0, "cache": "hit" if hits else "miss"}
+
+
+#: what compile_kernel compiles for each method (the first is the one to look for in the cache)
+ENTRY = {"exact": "integrate_exact", "naive": "integrate", "ensemble": "run_members", "chaos": "run_twin_members"}
+
+
+def is_cached(module: ModuleType, method: str) -> bool:
+    """Whether Numba's cache beside the kernel module holds `method`'s loop (so no compile is due)."""
+    path = Path(module.__file__)
+    return any(path.parent.glob(f"__pycache__/{path.stem}.{ENTRY[method]}-*.nbi"))
 
 
 def _functions_of(model_text: str) -> tuple[str, ...]:
