@@ -27,6 +27,10 @@ examples:
   jackbox compare drop --restitution 1.0 0.6      elastic vs inelastic, one figure
   jackbox animate runs/drop/trajectory.npz --speed 0.25
   jackbox plot runs/drop/trajectory.npz          the time series of a saved run
+  jackbox ensemble shaken --n 100000 --perturb theta_jack=1e-6     10^5 members on every core
+  jackbox ensemble drop --n 400 --sweep restitution=0.5:1.0 --dask local
+  jackbox chaos shaken --n 2000 --t-end 10       twin trajectories: FTLE estimate and its spread
+  jackbox bench                        step throughput, skip gains, C ceiling, ensemble scaling
   jackbox build                        regenerate generated/ for the built-in scenes
   jackbox scenes                       list the built-in scenes
 """
@@ -138,6 +142,46 @@ def _parser() -> argparse.ArgumentParser:
     plot.add_argument("--quiet", "-q", action="store_true", help="no summary")
     plot.set_defaults(func=cmd_plot)
 
+    ens = sub.add_parser(
+        "ensemble", help="run N members of a scene in parallel (perturbed starts, parameter sweeps)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Run N members of one scene on every core (Numba prange), or on a Dask cluster,\n"
+                    "and write DIR/ensemble.npz: per member the final state, impulse count, time of the\n"
+                    "first impulse, status, the state at --samples times, and its start and parameters.\n"
+                    "Member i depends only on i and --seed: any split of the work gives the same numbers.\n\n"
+                    "  --perturb theta_jack=1e-6      start offsets, uniform in [-size, size] (random, or --grid)\n"
+                    "  --sweep restitution=0.5:1.0    parameter values spread over the members (two: a grid)")
+    ens.add_argument("scene", help="built-in scene name or path to a .toml scene file")
+    _study_options(ens)
+    ens.add_argument("--samples", type=float, nargs="+", metavar="T",
+                     help="times (s) at which to keep every member's state (rounded to whole steps)")
+    ens.add_argument("--out", type=Path, metavar="DIR", help="output folder (default: runs/<scene name>)")
+    ens.set_defaults(func=cmd_ensemble)
+
+    chaos = sub.add_parser(
+        "chaos", help="finite-time Lyapunov exponents from renormalised twin trajectories",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Each of N members runs with a twin at scaled distance --d0 in a random direction;\n"
+                    "every --renorm seconds the growth of their separation is logged and the twin is\n"
+                    "pulled back to d0 (Benettin). Writes DIR/chaos.npz (log stretches, growth curves,\n"
+                    "FTLE per member) and DIR/chaos.png (growth over time, FTLE histogram), and prints\n"
+                    "the FTLE's mean and spread. Coordinates are scaled by L (angles by 1 rad), rates by\n"
+                    "sqrt(g L).")
+    chaos.add_argument("scene", help="built-in scene name or path to a .toml scene file")
+    _study_options(chaos)
+    chaos.add_argument("--d0", type=_positive, default=1e-8, help="twin separation, scaled (default: 1e-8)")
+    chaos.add_argument("--renorm", type=_positive, metavar="S",
+                       help="seconds between renormalisations (default: 100 steps)")
+    chaos.add_argument("--out", type=Path, metavar="DIR", help="output folder (default: runs/<scene name>)")
+    chaos.set_defaults(func=cmd_chaos)
+
+    from . import bench as _bench
+
+    bench = sub.add_parser("bench", help="measure step throughput, skip gains, the C ceiling, ensemble scaling",
+                           description=_bench.__doc__.split("\n\n")[0])
+    _bench.add_arguments(bench)
+    bench.set_defaults(func=_bench.run)
+
     build = sub.add_parser("build", help="regenerate the generated model modules",
                            description="Regenerate the generated module of each scene: built-in "
                                        "names write generated/<name>.py, scene files write the "
@@ -162,6 +206,108 @@ def _simulation_options(parser, methods) -> None:
                              "gravity, or section.key; repeatable")
     parser.add_argument("--method", choices=methods,
                         help=f"how impacts are handled: {', '.join(methods)} (default: jackbox.simulate's)")
+
+
+def _study_options(parser) -> None:
+    parser.add_argument("--n", type=_count, required=True, help="number of members")
+    parser.add_argument("--perturb", action="append", default=[], metavar="NAME=SIZE",
+                        help="perturb a start coordinate or rate (x_jack, theta_jack_dot, ...) by up to "
+                             "SIZE; repeatable")
+    parser.add_argument("--grid", action="store_true",
+                        help="perturbations on an even grid (n = m^k for k names) instead of random")
+    parser.add_argument("--sweep", action="append", default=[], metavar="NAME=FIRST:LAST",
+                        help="spread a parameter (a [params] name, e, e_ground or restitution) over the "
+                             "members; two --sweep make a square grid")
+    parser.add_argument("--seed", type=_count0, default=0, help="random seed of the perturbations (default: 0)")
+    parser.add_argument("--t-end", type=float, metavar="T", help="simulated time in s (default: the scene's)")
+    parser.add_argument("--dt", type=float, help="RK4 step in s (default: the scene's)")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", dest="overrides",
+                        help="change a scene value for every member (as jackbox run --set); repeatable")
+    parser.add_argument("--threads", type=_count, help="Numba threads here, or per Dask worker (default: all "
+                                                       "cores here, 1 per Dask worker)")
+    parser.add_argument("--chunk", type=_count, help="members per kernel call / Dask task (default: 1024)")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--dask", choices=("local",),
+                       help="local: start a Dask LocalCluster on this machine (--workers processes)")
+    where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                       help="send the chunks to a running Dask scheduler")
+    parser.add_argument("--workers", type=_count, help="worker processes of --dask local (default: cores)")
+    parser.add_argument("--quiet", "-q", action="store_true", help="no progress bar or summary")
+
+
+def _count(text: str) -> int:
+    return int(_number(text, lambda v: v >= 1 and v == int(v), "a whole number >= 1"))
+
+
+def _count0(text: str) -> int:
+    return int(_number(text, lambda v: v >= 0 and v == int(v), "a whole number >= 0"))
+
+
+def _pairs(values: list[str], option: str, parse) -> dict:
+    out = {}
+    for pair in values:
+        name, sep, value = pair.partition("=")
+        if not sep or not name.strip():
+            raise JackboxError(f"{option} {pair!r}: expected NAME=VALUE")
+        try:
+            out[name.strip()] = parse(value.strip())
+        except ValueError:
+            raise JackboxError(f"{option} {pair!r}: cannot read {value.strip()!r}") from None
+    return out
+
+
+def _span(text: str) -> tuple[float, float]:
+    first, sep, last = text.partition(":")
+    if not sep:
+        raise ValueError(text)
+    return float(first), float(last)
+
+
+def _study_kwargs(args) -> dict:
+    if args.workers and args.dask != "local":
+        raise JackboxError("--workers goes with --dask local")
+    return {"perturb": _pairs(args.perturb, "--perturb", float), "sweep": _pairs(args.sweep, "--sweep", _span),
+            "t_end": args.t_end, "dt": args.dt, "seed": args.seed, "grid": args.grid, "threads": args.threads,
+            "chunk": args.chunk, "scheduler": args.scheduler,
+            "dask_local": (args.workers or _cores()) if args.dask == "local" else None,
+            "progress": not args.quiet, "log": _say(args)}
+
+
+def _cores() -> int:
+    import os
+
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def cmd_ensemble(args) -> int:
+    from .ensemble import ensemble
+    from .scene import load_scene
+
+    scene = load_scene(args.scene, _overrides(args.overrides))
+    out_dir = _out_dir(args, scene)
+    result = ensemble(scene, args.n, samples=args.samples, **_study_kwargs(args))
+    path = result.save(out_dir / "ensemble.npz")
+    if not args.quiet:
+        print(result.summary())
+        print(f"wrote      {path}")
+    return 0
+
+
+def cmd_chaos(args) -> int:
+    from .ensemble import chaos
+    from .scene import load_scene
+
+    scene = load_scene(args.scene, _overrides(args.overrides))
+    out_dir = _out_dir(args, scene)
+    study = chaos(scene, args.n, d0=args.d0, renorm=args.renorm, **_study_kwargs(args))
+    from . import plots
+
+    written = [study.save(out_dir / "chaos.npz"), plots.write_chaos(study, out_dir / "chaos.png")]
+    if not args.quiet:
+        print(study.summary())
+        for path in written:
+            print(f"wrote      {path}")
+    return 0
 
 
 def _number(text: str, ok, what: str) -> float:

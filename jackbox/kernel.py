@@ -1021,6 +1021,8 @@ def integrate_exact(q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record
                                                   rec_energy, box, i == next_rec, next_rec, record_every)
                 if i == i_end:
                     break
+            if not have_trial:     # stopped only to record: fly on
+                continue
         t = t0 + i * dt
         t_next = t0 + (i + 1) * dt
         # The step with gap rows: quiet when every gap, at both ends of the

@@ -43,6 +43,7 @@ OPTIONAL = {
     "box_motion": "def box_motion(t, p, out):\n    pass\n",
 }
 _loaded: dict[str, ModuleType] = {}
+_stamped: dict[tuple, ModuleType] = {}   #: (model file, its and the kernel's mtime and size) -> module
 
 
 def cache_dir() -> Path:
@@ -108,9 +109,17 @@ def kernel_source(model_text: str, kernel_text: str | None = None) -> str:
 
 def load_kernel(model_file: Path, kernel_text: str | None = None) -> ModuleType:
     """Import (assembling on first use) the kernel module for a generated model."""
+    # a second call with unchanged files costs two stat()s, not reading and hashing them
+    stamp = None
+    if kernel_text is None:
+        stamp = (str(model_file), *_stat(model_file), *_stat(KERNEL_SOURCE))
+        if stamp in _stamped:
+            return _stamped[stamp]
     text = kernel_source(model_file.read_text(), kernel_text)
     key = hashlib.sha256((numba.__version__ + "\0" + text).encode()).hexdigest()[:16]
     if key in _loaded:
+        if stamp is not None:
+            _stamped[stamp] = _loaded[key]
         return _loaded[key]
     # cached models are <name>_<hash>.py, committed ones <name>.py
     stem = model_file.stem.rsplit("_", 1)[0] if model_file.parent.name == "models" else model_file.stem
@@ -123,7 +132,14 @@ def load_kernel(model_file: Path, kernel_text: str | None = None) -> ModuleType:
     sys.modules[name] = module
     spec.loader.exec_module(module)
     _loaded[key] = module
+    if stamp is not None:
+        _stamped[stamp] = module
     return module
+
+
+def _stat(path: Path) -> tuple[int, int, int]:
+    st = path.stat()
+    return st.st_ino, st.st_mtime_ns, st.st_size
 
 
 def kernel_for(scene: Scene, log=None) -> ModuleType:

@@ -7,6 +7,7 @@ the measured convergence orders are those of the methods.
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -32,3 +33,47 @@ def test_workprecision_quick_mode(tmp_path):
     assert scene["floor"] * 30 <= min(exact["error"])
     md = (tmp_path / "workprecision.md").read_text()
     assert "## Observed order" in md and "## Speed-up of the exact kernel at equal error" in md
+
+
+def _positive(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x > 0
+
+
+def test_throughput_quick_mode(tmp_path):
+    # one scene, tiny sizes, no new processes; the first run on a machine compiles the
+    # every-gap-every-step kernel variant (cached afterwards), hence the generous timeout
+    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "throughput.py"), "--quick", "--no-cold",
+                           "--scenes", "shaken", "--repeat", "1", "--out", str(tmp_path)],
+                          cwd=ROOT, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stderr
+    for ext in ("md", "json"):
+        assert (tmp_path / f"throughput.{ext}").stat().st_size > 0, ext
+    result = json.loads((tmp_path / "throughput.json").read_text())
+    assert result["quick"] and result["invariants_hold"] and "throughput.py" in result["command"]
+    (row,) = result["scenes"]
+    assert row["scene"] == "shaken" and row["cold_start_s"] is None and row["warm_start_s"] is None
+    for key in ("codegen_s", "exact_ns_per_step", "no_broad_phase_ns_per_step", "broad_phase_gain",
+                "record_every_step_ns_per_step", "recording_gain", "naive_ns_per_step",
+                "reference_ns_per_step", "speedup_exact_vs_reference", "speedup_naive_vs_reference"):
+        assert _positive(row[key]), (key, row[key])
+    # a real invariant, not a timing: skipping gap rows far from contact, or recording less,
+    # changes no operation on the state, so the runs end in bit-identical states
+    assert row["same_final_state_broad_phase"] is True
+    assert row["same_final_state_recording"] is True
+    ceiling = result["ceiling"]
+    if ceiling["available"]:
+        for key in ("c_ns_per_step", "kernel_over_c", "no_broad_phase_over_c"):
+            assert _positive(ceiling[key]), (key, ceiling[key])
+    else:
+        assert ceiling["reason"]        # no C compiler here: said why, did not crash
+    ens = result["ensemble"]
+    if ens["available"]:
+        for threads in ("1", "2"):
+            assert _positive(ens["threads"][threads]["member_steps_per_second"]), threads
+        assert _positive(ens["efficiency"]) and ens["same_results"] is True
+    else:
+        assert ens["reason"]
+    md = (tmp_path / "throughput.md").read_text()
+    for title in ("## Step time and start-up", "## Against the lambdified reference", "## Broad phase",
+                  "## Recording", "## The C ceiling", "## Ensemble scaling"):
+        assert title in md, title

@@ -1,0 +1,545 @@
+"""Step throughput, what each skip gains, the C ceiling and ensemble scaling, in one run.
+
+    jackbox bench [--scenes NAME ...] [--repeat 5] [--out DIR] [--quick] [--no-cold]
+    python benchmarks/throughput.py ...            (the same, from a checkout)
+
+For every built-in scene (or those named), in one process and one run:
+
+* codegen: derive (sympy) + one cse + emit, in process;
+* cold start: a new process with an empty kernel cache runs 1 step (import,
+  model load, Numba compile); warm start: the same with the cache filled;
+* ns per RK4 step over the scene's whole run (its t_end and dt, impacts
+  included), calling the compiled loops directly: the exact method (the
+  default kernel), the same kernel built with ``BROAD_PHASE = False`` (every
+  gap row every step; it must end in the bit-identical state), the exact
+  method recording energy and a sample at every step (same state again), and
+  the naive method. Unless said otherwise a run records only its first and
+  last state, as the reference below does;
+* the lambdified plain-Python reference (method naive), ns per step;
+* for ``shaken``: the hand-written C loop of ``benchmarks/ceiling.py`` (RK4
+  and all 16 gaps every step), and the kernel's ns per step over it;
+* for ``shaken``: an ensemble at 1 and 2 threads, member-steps per second,
+  and the 1 -> 2 core efficiency ``rate(2) / (2 rate(1))``.
+
+Figures are medians of ``--repeat`` samples, the variants interleaved so that
+they see the same machine load: compare ratios, not absolute times, across
+machines. Compile time is reported apart from run time, never mixed in.
+Writes ``throughput.md`` (one table per concern) and ``throughput.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import math
+import os
+import platform
+import shlex
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+import jackbox
+
+from . import api, loader
+from .errors import JackboxError
+from .fileio import write_atomic
+from .scene import builtin_scenes, load_scene
+
+ROOT = Path(jackbox.__file__).resolve().parent.parent
+CEILING = ROOT / "benchmarks" / "ceiling.py"
+#: the scene of the C ceiling and of the ensemble figures (free flight most of the time)
+SHAKEN = "shaken"
+TOGGLE = "BROAD_PHASE = True"
+#: the figures' sizes: seconds per timed kernel sample, reference length (s of the
+#: scene), C loop steps, ensemble members and length (s)
+SIZES = {
+    "full": {"sample_seconds": 0.2, "reference_t": 0.3, "c_steps": 1_000_000, "ensemble_n": 2000,
+             "ensemble_t": 10.0},
+    "quick": {"sample_seconds": 0.01, "reference_t": 0.02, "c_steps": 20_000, "ensemble_n": 64,
+              "ensemble_t": 0.1},
+}
+#: the issue's targets (reported, never asserted)
+TARGET_SPEEDUP, TARGET_C_RATIO, TARGET_RATE, TARGET_EFFICIENCY = 500.0, 1.3, 2.5e7, 0.85
+
+
+def default_out() -> Path:
+    """``benchmarks/results`` of the checkout jackbox runs from, else ``./jackbox-bench``."""
+    if (ROOT / "pyproject.toml").is_file() and (ROOT / "benchmarks").is_dir():
+        return ROOT / "benchmarks" / "results"
+    return Path("jackbox-bench")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--scenes", nargs="+", metavar="NAME", default=None,
+                        help="built-in scenes to measure (default: all of them)")
+    parser.add_argument("--repeat", type=int, default=5, metavar="N",
+                        help="samples per figure; the figures are their medians (default: 5)")
+    parser.add_argument("--out", type=Path, metavar="DIR", default=None,
+                        help="where throughput.md and throughput.json go (default: benchmarks/results "
+                             "in a checkout, else ./jackbox-bench)")
+    parser.add_argument("--quick", action="store_true",
+                        help="tiny sizes, to check that the benchmark runs (its figures mean little)")
+    parser.add_argument("--no-cold", action="store_true",
+                        help="skip the cold and warm start-up (new processes, a fresh kernel cache each)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_arguments(parser)
+    return run(parser.parse_args(argv))
+
+
+def run(args) -> int:
+    """Measure everything, print the tables, write the files; 1 when an invariant failed."""
+    scenes = list(args.scenes) if args.scenes else list(builtin_scenes())
+    unknown = [s for s in scenes if s not in builtin_scenes()]
+    if unknown:
+        raise JackboxError(f"not a built-in scene: {', '.join(unknown)} "
+                           f"(built-in: {', '.join(builtin_scenes())})")
+    if args.repeat < 1:
+        raise JackboxError(f"--repeat must be at least 1, got {args.repeat}")
+    size = SIZES["quick" if args.quick else "full"]
+    out = args.out if args.out is not None else default_out()
+    t_start = time.perf_counter()
+    load_start = _load_average()
+    rows = [bench_scene(name, args.repeat, size, cold=not args.no_cold) for name in scenes]
+    if SHAKEN in scenes:
+        shaken = next(r for r in rows if r["scene"] == SHAKEN)
+        ceiling = bench_ceiling(shaken, args.repeat, size)
+        ens = bench_ensemble(args.repeat, size)
+    else:
+        ceiling = {"available": False, "reason": f"{SHAKEN} is not among the scenes measured"}
+        ens = {"available": False, "reason": f"{SHAKEN} is not among the scenes measured"}
+    result = {
+        "jackbox": jackbox.__version__, "command": getattr(args, "command_line", None) or command_line(),
+        "machine": machine(), "repeat": args.repeat, "quick": bool(args.quick), "sizes": size,
+        "wall_seconds": time.perf_counter() - t_start,
+        # other work on the machine skews every figure, the 2-thread ensemble most
+        "load_average": {"start": load_start, "end": _load_average()},
+        "scenes": rows, "ceiling": ceiling, "ensemble": ens,
+    }
+    result["targets"] = targets(result)
+    result["invariants_hold"] = all(
+        [r["same_final_state_broad_phase"] and r["same_final_state_recording"] for r in rows]
+        + ([ens["same_results"]] if ens.get("available") else []))
+    text = markdown(result)
+    print(text)
+    write_atomic(out / "throughput.md", text)
+    write_atomic(out / "throughput.json", json.dumps(result, indent=2) + "\n")
+    _say(f"wrote {out / 'throughput.md'} and {out / 'throughput.json'} ({result['wall_seconds']:.0f} s)")
+    if not result["invariants_hold"]:
+        print("jackbox bench: error: an invariant failed (see same_final_state_* / same_results in "
+              "throughput.json): the variants must end in bit-identical states", file=sys.stderr)
+        return 1
+    return 0
+
+
+# ---------------------------------------------------------------------------
+# one scene
+
+
+def bench_scene(name: str, repeat: int, size: dict, cold: bool = True) -> dict:
+    scene = load_scene(name)
+    few = max(1, repeat // 2)
+    _say(f"{name}: codegen")
+    from codegen.driver import generate       # sympy: only for this figure
+
+    codegen = statistics.median(_seconds(lambda: generate(scene)) for _ in range(few))
+    colds, warms = [], []
+    if cold:
+        _say(f"{name}: cold and warm start ({few} x 2 new processes, each cold one compiles)")
+        for _ in range(few):
+            with tempfile.TemporaryDirectory(prefix="jackbox-bench-") as cache:
+                colds.append(start_seconds(name, cache))
+                warms.append(start_seconds(name, cache))
+
+    _say(f"{name}: loading the kernels (default, and with BROAD_PHASE = False)")
+    model_file = loader.ensure_model(scene)
+    text = loader.KERNEL_SOURCE.read_text()      # read once: both variants from the same source
+    if text.count(TOGGLE) != 1:
+        raise RuntimeError(f"{loader.KERNEL_SOURCE} must set {TOGGLE!r} exactly once for the benchmark "
+                           f"to build its every-gap-every-step variant")
+    kernel = loader.load_kernel(model_file, text)
+    loader.compile_kernel(kernel)
+    every_gap = loader.load_kernel(model_file, text.replace(TOGGLE, "BROAD_PHASE = False"))
+    every_gap_compile = loader.compile_kernel(every_gap, "exact")
+
+    run = api.prepare(scene)
+    n = run.n_steps
+    variants = {
+        "exact": Loop(kernel, run, "exact", lean=True),
+        "no_broad_phase": Loop(every_gap, run, "exact", lean=True),
+        "record_every_step": Loop(kernel, run, "exact", lean=False),
+        "naive": Loop(kernel, run, "naive", lean=True),
+    }
+    _say(f"{name}: kernel, {n} steps a run, {repeat} samples of each of {', '.join(variants)}")
+    finals = {key: v.once() for key, v in variants.items()}        # warm, and the end states
+    for v in variants.values():
+        v.calibrate(size["sample_seconds"])
+    ns = {key: [] for key in variants}
+    for _ in range(repeat):
+        for key, v in variants.items():
+            ns[key].append(v.sample())
+    med = {key: statistics.median(x) for key, x in ns.items()}
+
+    _say(f"{name}: lambdified reference, {size['reference_t']:g} s of the scene x {repeat}")
+    from . import reference                   # sympy
+    ref_steps = api.prepare(scene, t_end=size["reference_t"]).n_steps
+    ref_ns = [reference.simulate(scene, t_end=size["reference_t"], record_every=ref_steps + 1)
+              .meta["reference"]["run_seconds"] / ref_steps * 1e9 for _ in range(repeat)]
+    reference_ns = statistics.median(ref_ns)
+
+    return {
+        "scene": name, "steps": n, "dt": run.dt,
+        "codegen_s": codegen,
+        "cold_start_s": statistics.median(colds) if colds else None,
+        "warm_start_s": statistics.median(warms) if warms else None,
+        "exact_ns_per_step": med["exact"], "exact_steps_per_s": 1e9 / med["exact"],
+        "no_broad_phase_ns_per_step": med["no_broad_phase"],
+        "broad_phase_gain": med["no_broad_phase"] / med["exact"],
+        "same_final_state_broad_phase": finals["exact"] == finals["no_broad_phase"],
+        "record_every_step_ns_per_step": med["record_every_step"],
+        "recording_gain": med["record_every_step"] / med["exact"],
+        "same_final_state_recording": finals["exact"] == finals["record_every_step"],
+        "naive_ns_per_step": med["naive"], "exact_over_naive": med["exact"] / med["naive"],
+        "reference_ns_per_step": reference_ns, "reference_steps": ref_steps,
+        "speedup_exact_vs_reference": reference_ns / med["exact"],
+        "speedup_naive_vs_reference": reference_ns / med["naive"],
+        "no_broad_phase_kernel_cache": every_gap_compile["cache"],
+        "runs_per_sample": {key: v.inner for key, v in variants.items()},
+        "samples_ns_per_step": ns | {"reference": ref_ns},
+    }
+
+
+class Loop:
+    """One compiled loop on one prepared run, called directly as :func:`jackbox.api.run_prepared` does.
+
+    lean: record only the first and last state (``record_every`` past the end),
+    else energy and a sample at every step.
+    """
+
+    def __init__(self, kernel, run: api.Run, method: str, lean: bool):
+        self.kernel, self.run, self.method = kernel, run, method
+        self.record_every = run.n_steps + 1 if lean else 1
+        n_rec = run.n_steps // self.record_every + 1 + (run.n_steps % self.record_every != 0)
+        self.rec = (np.empty(n_rec), np.empty((n_rec, 6)), np.empty((n_rec, 6)), np.empty(n_rec))
+        size = max(1 << 16, 8 * kernel.N_CONTACT)        # never full on the built-in scenes
+        self.ev = (np.empty(size), np.empty(size, np.int64), np.zeros(size, np.int64))
+        self.tol = api.tolerances(run, kernel) if method == "exact" else None
+        self.inner = 1
+
+    def once(self) -> bytes:
+        """Run the scene once; returns the end state (q, qd, contacts at rest, event log) as bytes."""
+        k, r = self.kernel, self.run
+        q, qd = r.q.copy(), r.qd.copy()
+        rec_t, rec_q, rec_qd, rec_e = self.rec
+        ev_t, ev_k, ev_kind = self.ev
+        if self.method == "exact":
+            rest = np.zeros(k.N_CONTACT, np.int64)
+            i, n_rec, n_ev, status = k.integrate_exact(
+                q, qd, rest, r.p, self.tol, 0.0, r.dt, 0, r.n_steps, r.n_steps, self.record_every,
+                rec_t, rec_q, rec_qd, rec_e, 0, ev_t, ev_k, ev_kind, 0)
+            log = (rest, ev_t[:n_ev], ev_k[:n_ev], ev_kind[:n_ev])
+        else:
+            i, n_rec, n_ev, status = k.integrate(
+                q, qd, r.p, 0.0, r.dt, 0, r.n_steps, r.n_steps, self.record_every,
+                rec_t, rec_q, rec_qd, rec_e, 0, ev_t, ev_k, 0)
+            log = (ev_t[:n_ev], ev_k[:n_ev])
+        if status != k.DONE or i != r.n_steps:
+            raise RuntimeError(f"{r.scene.name} ({self.method}): the run stopped at step {i} of "
+                               f"{r.n_steps} with status {status}")
+        return b"".join(a.tobytes() for a in (q, qd, *log, rec_q[n_rec - 1], rec_qd[n_rec - 1]))
+
+    def calibrate(self, seconds: float) -> None:
+        """Runs per sample so that a sample takes about `seconds`."""
+        once = _seconds(self.once)
+        self.inner = max(1, round(seconds / max(once, 1e-9)))
+
+    def sample(self) -> float:
+        """ns per step over `inner` runs of the scene."""
+        t0 = time.perf_counter()
+        for _ in range(self.inner):
+            self.once()
+        return (time.perf_counter() - t0) / (self.inner * self.run.n_steps) * 1e9
+
+
+def start_seconds(name: str, cache: str) -> float:
+    """Wall time of a new process that runs one step of `name` with kernel cache `cache`."""
+    code = f"import jackbox; jackbox.simulate({name!r}, t_end=1e-3)"
+    env = os.environ | {"JACKBOX_CACHE_DIR": cache}
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-c", code], env=env, check=True)
+    return time.perf_counter() - t0
+
+
+# ---------------------------------------------------------------------------
+# the C ceiling and the ensemble (shaken)
+
+
+def load_ceiling():
+    """benchmarks/ceiling.py of the checkout, or None when jackbox is not run from one."""
+    if not CEILING.is_file():
+        return None
+    spec = importlib.util.spec_from_file_location("jackbox_bench_ceiling", CEILING)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def bench_ceiling(shaken: dict, repeat: int, size: dict) -> dict:
+    """The hand-written C loop's ns per step, and the kernel's over it (lower is faster)."""
+    ceiling = load_ceiling()
+    if ceiling is None:
+        return {"available": False, "reason": f"{CEILING} not found (jackbox is not run from a checkout)"}
+    _say(f"{SHAKEN}: C ceiling, {repeat} x {size['c_steps']} steps")
+    try:
+        r = ceiling.measure(size["c_steps"], repeat)
+    except ceiling.NoCompilerError as exc:
+        return {"available": False, "reason": str(exc)}
+    except (RuntimeError, OSError, subprocess.CalledProcessError) as exc:
+        return {"available": False, "reason": f"the C loop failed: {exc}"}
+    c_ns = r["ns_per_step"]
+    return {"available": True, "reason": None, "scene": SHAKEN, "c_ns_per_step": c_ns,
+            "c_steps": r["steps"], "c_samples_ns_per_step": r["ns_per_step_runs"],
+            "compiler": r["version"], "flags": r["flags"],
+            "kernel_ns_per_step": shaken["exact_ns_per_step"],
+            "kernel_over_c": shaken["exact_ns_per_step"] / c_ns,
+            "no_broad_phase_ns_per_step": shaken["no_broad_phase_ns_per_step"],
+            "no_broad_phase_over_c": shaken["no_broad_phase_ns_per_step"] / c_ns}
+
+
+def bench_ensemble(repeat: int, size: dict) -> dict:
+    """Member-steps per second of an ensemble of shaken at 1 and 2 threads, interleaved."""
+    import numba
+
+    from . import ensemble
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        return {"available": False, "reason": f"Numba has {numba.config.NUMBA_NUM_THREADS} thread(s)"}
+    n, t_end = size["ensemble_n"], size["ensemble_t"]
+
+    def go(threads, members=n):
+        return ensemble.ensemble(SHAKEN, members, perturb={"theta_jack": 1e-6}, t_end=t_end, seed=0,
+                                 threads=threads)
+
+    _say(f"{SHAKEN}: ensemble, {n} members x {t_end:g} s, 1 and 2 threads x {repeat}")
+    go(2, 4)                                      # compiled or loaded from the cache: not timed
+    rates, seconds, same = {1: [], 2: []}, {1: [], 2: []}, True
+    for _ in range(repeat):
+        one, two = go(1), go(2)
+        same = same and np.array_equal(one.q, two.q) and np.array_equal(one.qd, two.qd)
+        for threads, e in ((1, one), (2, two)):
+            rates[threads].append(e.meta["member_steps_per_second"])
+            seconds[threads].append(e.meta["run_seconds"])
+    rate = {t: statistics.median(x) for t, x in rates.items()}
+    return {"available": True, "reason": None, "scene": SHAKEN, "n": n, "t_end": t_end,
+            "member_steps": n * one.spec.n_steps, "perturb": {"theta_jack": 1e-6},
+            "threads": {str(t): {"member_steps_per_second": rate[t],
+                                 "run_seconds": statistics.median(seconds[t]),
+                                 "samples_member_steps_per_second": rates[t]} for t in (1, 2)},
+            "efficiency": rate[2] / (2 * rate[1]), "same_results": bool(same)}
+
+
+# ---------------------------------------------------------------------------
+# the report
+
+
+def targets(result: dict) -> list[dict]:
+    """The issue's targets against this run's figures: reported, never asserted."""
+    rows = {r["scene"]: r for r in result["scenes"]}
+    out = []
+    if SHAKEN in rows:
+        out.append({"what": f"exact kernel vs lambdified reference, {SHAKEN}", "target": f">= {TARGET_SPEEDUP:g}x",
+                    "value": rows[SHAKEN]["speedup_exact_vs_reference"],
+                    "met": rows[SHAKEN]["speedup_exact_vs_reference"] >= TARGET_SPEEDUP})
+    c = result["ceiling"]
+    if c.get("available"):
+        # (the C loop checks every gap every step; the kernel's skips are what should beat it)
+        out.append({"what": "kernel / C loop", "target": f"<= {TARGET_C_RATIO:g}",
+                    "value": c["kernel_over_c"], "met": c["kernel_over_c"] <= TARGET_C_RATIO})
+        out.append({"what": "kernel / C loop, with the skips", "target": "< 1 (beats it)",
+                    "value": c["kernel_over_c"], "met": c["kernel_over_c"] < 1.0})
+    e = result["ensemble"]
+    if e.get("available"):
+        r2 = e["threads"]["2"]["member_steps_per_second"]
+        out.append({"what": f"ensemble member-steps/s, 2 threads, {SHAKEN}", "target": f">= {TARGET_RATE:.2g}",
+                    "value": r2, "met": r2 >= TARGET_RATE})
+        out.append({"what": "1 -> 2 thread efficiency", "target": f">= {TARGET_EFFICIENCY:.0%}",
+                    "value": e["efficiency"], "met": e["efficiency"] >= TARGET_EFFICIENCY})
+    return out
+
+
+def markdown(result: dict) -> str:
+    rows, c, e = result["scenes"], result["ceiling"], result["ensemble"]
+    s = result["sizes"]
+    lines = [
+        "# Throughput",
+        "",
+        f"Measured by `{result['command']}` on {result['machine']['description']}; medians of one run "
+        f"({result['repeat']} sample(s) of each figure, the variants interleaved; "
+        f"{result['wall_seconds']:.0f} s in all{', quick sizes' if result['quick'] else ''}; "
+        f"1-minute load average {_load(result['load_average'])}).",
+        "",
+        "Kernel figures are ns per RK4 step over each scene's whole run (its t_end and dt, impacts "
+        "included), the compiled loops called directly, recording only the first and last state "
+        "unless said otherwise. Compare ratios, not absolute times, across machines.",
+        "",
+        "## Step time and start-up",
+        "",
+        "| scene | steps | codegen | cold start | warm start | exact ns/step | exact steps/s "
+        "| naive ns/step | exact / naive |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(f"| {r['scene']} | {r['steps']} | {r['codegen_s']:.2f} s | {_s(r['cold_start_s'])} "
+                     f"| {_s(r['warm_start_s'])} | {r['exact_ns_per_step']:.1f} | {r['exact_steps_per_s']:.3g} "
+                     f"| {r['naive_ns_per_step']:.1f} | {r['exact_over_naive']:.2f} |")
+    lines += [
+        "",
+        "Cold start: a new process with an empty kernel cache runs one step (import, model, Numba "
+        "compile); warm start: the same, kernel loaded from the cache.",
+        "",
+        "## Against the lambdified reference",
+        "",
+        "| scene | reference ns/step (naive method, plain Python) | speed-up of the exact kernel "
+        "| speed-up of the naive kernel (same method) |",
+        "|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(f"| {r['scene']} | {r['reference_ns_per_step']:.0f} | {r['speedup_exact_vs_reference']:.0f}x "
+                     f"| {r['speedup_naive_vs_reference']:.0f}x |")
+    lines += [
+        "",
+        f"The reference runs {s['reference_t']:g} s of each scene (sympy.lambdify, numpy), recording "
+        "its first and last state.",
+        "",
+        "## Broad phase: no gap rows far from contact",
+        "",
+        "| scene | exact ns/step | without broad phase (every gap every step) | gain | same final state |",
+        "|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(f"| {r['scene']} | {r['exact_ns_per_step']:.1f} | {r['no_broad_phase_ns_per_step']:.1f} "
+                     f"| {r['broad_phase_gain']:.2f}x | {_yes(r['same_final_state_broad_phase'])} |")
+    lines += [
+        "",
+        "Without: the same kernel compiled with `BROAD_PHASE = False`. Both must end in the "
+        "bit-identical state.",
+        "",
+        "## Recording: energy and samples only when recorded",
+        "",
+        "| scene | first and last state | every step | gain | same final state |",
+        "|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(f"| {r['scene']} | {r['exact_ns_per_step']:.1f} | {r['record_every_step_ns_per_step']:.1f} "
+                     f"| {r['recording_gain']:.2f}x | {_yes(r['same_final_state_recording'])} |")
+    lines += ["", "ns per step of the exact kernel; gain: every step / first and last.", "",
+              f"## The C ceiling ({SHAKEN})", ""]
+    if c.get("available"):
+        lines += [
+            "| C loop ns/step | kernel ns/step | kernel / C | without broad phase ns/step | without / C |",
+            "|---|---|---|---|---|",
+            f"| {c['c_ns_per_step']:.1f} | {c['kernel_ns_per_step']:.1f} | {c['kernel_over_c']:.2f} "
+            f"| {c['no_broad_phase_ns_per_step']:.1f} | {c['no_broad_phase_over_c']:.2f} |",
+            "",
+            f"`benchmarks/ceiling/shaken_step.c`: RK4 and all 16 gaps every step, no impact resolved, "
+            f"{c['c_steps']} steps from the scene's start; {c['compiler']}, `{' '.join(c['flags'])}`. "
+            "Below 1: the kernel is faster.",
+        ]
+    else:
+        lines.append(f"Unavailable: {c['reason']}.")
+    lines += ["", f"## Ensemble scaling ({SHAKEN})", ""]
+    if e.get("available"):
+        t1, t2 = e["threads"]["1"], e["threads"]["2"]
+        lines += [
+            "| threads | member-steps/s | run time | efficiency 1 -> 2 | same results |",
+            "|---|---|---|---|---|",
+            f"| 1 | {t1['member_steps_per_second']:.3g} | {t1['run_seconds']:.3g} s | | |",
+            f"| 2 | {t2['member_steps_per_second']:.3g} | {t2['run_seconds']:.3g} s | {e['efficiency']:.0%} "
+            f"| {_yes(e['same_results'])} |",
+            "",
+            f"`jackbox.ensemble.ensemble({SHAKEN!r}, {e['n']}, perturb={{'theta_jack': 1e-6}}, "
+            f"t_end={e['t_end']:g}, seed=0, threads=1 or 2)`: {e['member_steps']:.3g} member-steps a run; "
+            "efficiency = rate(2) / (2 rate(1)).",
+        ]
+    else:
+        lines.append(f"Unavailable: {e['reason']}.")
+    if result["targets"]:
+        lines += ["", "## Targets", ""]
+        if result["quick"]:
+            lines += ["Quick sizes: these runs are too short for the figures to mean anything.", ""]
+        lines += ["| what | target | measured | met |", "|---|---|---|---|"]
+        for t in result["targets"]:
+            value = f"{t['value']:.0%}" if "efficiency" in t["what"] else f"{t['value']:.3g}"
+            lines.append(f"| {t['what']} | {t['target']} | {value} | {_yes(t['met'])} |")
+    return "\n".join(lines) + "\n"
+
+
+def machine() -> dict:
+    import numba
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            cpu = next((line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    info = {"cpu": cpu, "cores": os.cpu_count(), "numba_threads": numba.config.NUMBA_NUM_THREADS,
+            "os": f"{platform.system()} {platform.machine()}", "python": platform.python_version(),
+            "numpy": np.__version__, "numba": numba.__version__}
+    info["description"] = (f"{cpu}, {info['cores']} cores, {info['os']}, Python {info['python']}, "
+                           f"NumPy {info['numpy']}, Numba {info['numba']}")
+    return info
+
+
+def command_line() -> str:
+    """This process's command line as typed: ``python benchmarks/throughput.py ...`` or ``jackbox bench ...``."""
+    argv0 = sys.argv[0]
+    head = ["python", argv0] if argv0.endswith(".py") else [Path(argv0).name]
+    return " ".join(shlex.quote(a) for a in head + sys.argv[1:])
+
+
+def _seconds(fn) -> float:
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
+
+
+def _load_average() -> float | None:
+    try:
+        return os.getloadavg()[0]
+    except (AttributeError, OSError):
+        return None
+
+
+def _load(load: dict) -> str:
+    if load["start"] is None:
+        return "unknown"
+    return f"{load['start']:.2f} at the start, {load['end']:.2f} at the end"
+
+
+def _s(x) -> str:
+    return "-" if x is None or not math.isfinite(x) else f"{x:.2f} s"
+
+
+def _yes(flag: bool) -> str:
+    return "yes" if flag else "**NO**"
+
+
+_T0 = time.perf_counter()
+
+
+def _say(message: str) -> None:
+    print(f"bench [{time.perf_counter() - _T0:5.0f} s]: {message}", file=sys.stderr, flush=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
