@@ -235,8 +235,7 @@ class Ensemble:
         lines = [f"{self.spec.scene.name}: {self.n} members over {self.spec.t_end:g} s "
                  f"(dt {self.spec.dt:g}, {self.spec.n_steps} steps each)"]
         if rate:
-            lines.append(f"  {rate:.3g} member-steps/s on {self.meta['threads']} thread(s), "
-                         f"{self.meta['run_seconds']:.2f} s")
+            lines.append(f"  {rate:.3g} member-steps/s on {_where(self.meta)}, {self.meta['run_seconds']:.2f} s")
         lines.append(f"  impulses per member: median {np.median(self.impacts):.0f}, "
                      f"range {self.impacts.min()}..{self.impacts.max()}")
         if hit.any():
@@ -292,7 +291,7 @@ class ChaosStudy:
         rate = self.meta.get("member_steps_per_second")
         if rate:
             lines.append(f"  {rate:.3g} member-steps/s (two trajectories per member) on "
-                         f"{self.meta['threads']} thread(s), {self.meta['run_seconds']:.2f} s")
+                         f"{_where(self.meta)}, {self.meta['run_seconds']:.2f} s")
         return "\n".join(lines)
 
     def save(self, path) -> Path:
@@ -418,6 +417,10 @@ def _execute(fn, spec, chunk, threads, scheduler, dask_local, progress, log, ste
     if spec.renorm_steps:
         meta |= {"d0": spec.d0, "renorm_steps": spec.renorm_steps}
     return merged, meta
+
+
+def _where(meta: dict) -> str:
+    return f"{meta['threads']} thread(s)" if meta["threads"] else meta["where"]
 
 
 def _kernel(spec: EnsembleSpec):
