@@ -169,3 +169,20 @@ def test_cli_study_mistakes_are_one_line(tmp_path, capsys, args, message):
     assert status == 2
     assert message in stderr and "Traceback" not in stderr and len(stderr.strip().splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_ensemble_runs_without_jit(tmp_path):
+    # the prange loops as plain Python (NUMBA_DISABLE_JIT=1) give the compiled numbers
+    import os
+    import subprocess
+    import sys
+
+    code = ("import json; from jackbox import ensemble as E; "
+            "e = E.ensemble('shaken', 2, perturb={'theta_jack': 1e-3}, t_end=0.3, samples=[0.1]); "
+            "print(json.dumps([e.q.tolist(), e.samples_q.tolist()]))")
+    env = os.environ | {"NUMBA_DISABLE_JIT": "1", "JACKBOX_CACHE_DIR": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    q, samples = (np.array(a) for a in json.loads(out.stdout))
+    jit = E.ensemble("shaken", 2, perturb={"theta_jack": 1e-3}, t_end=0.3, samples=[0.1])
+    np.testing.assert_allclose(q, jit.q, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(samples, jit.samples_q, rtol=0, atol=1e-12)
