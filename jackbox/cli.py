@@ -225,7 +225,8 @@ def _study_options(parser) -> None:
                         help="change a scene value for every member (as jackbox run --set); repeatable")
     parser.add_argument("--threads", type=_count, help="Numba threads here, or per Dask worker (default: all "
                                                        "cores here, 1 per Dask worker)")
-    parser.add_argument("--chunk", type=_count, help="members per kernel call / Dask task (default: 1024)")
+    parser.add_argument("--chunk", type=_count, help="members per kernel call / Dask task (default: 1024 with a "
+                                                     "progress bar or Dask, else all at once)")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--dask", choices=("local",),
                        help="local: start a Dask LocalCluster on this machine (--workers processes)")

@@ -43,7 +43,8 @@ OPTIONAL = {
     "box_motion": "def box_motion(t, p, out):\n    pass\n",
 }
 _loaded: dict[str, ModuleType] = {}
-_stamped: dict[tuple, ModuleType] = {}   #: (model file, its and the kernel's mtime and size) -> module
+#: (cache folder, model file, its and the kernel's inode, mtime and size) -> module
+_stamped: dict[tuple, ModuleType] = {}
 
 
 def cache_dir() -> Path:
@@ -112,7 +113,7 @@ def load_kernel(model_file: Path, kernel_text: str | None = None) -> ModuleType:
     # a second call with unchanged files costs two stat()s, not reading and hashing them
     stamp = None
     if kernel_text is None:
-        stamp = (str(model_file), *_stat(model_file), *_stat(KERNEL_SOURCE))
+        stamp = (str(cache_dir()), str(model_file), *_stat(model_file), *_stat(KERNEL_SOURCE))
         if stamp in _stamped:
             return _stamped[stamp]
     text = kernel_source(model_file.read_text(), kernel_text)

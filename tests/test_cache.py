@@ -35,6 +35,7 @@ def fresh_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("JACKBOX_CACHE_DIR", str(tmp_path / "cache"))
     # kernels imported earlier in this process would be reused from memory
     monkeypatch.setattr(loader, "_loaded", {})
+    monkeypatch.setattr(loader, "_stamped", {})
     return tmp_path / "cache"
 
 
