@@ -29,6 +29,7 @@ import numpy as np
 from . import trajectory
 from .fileio import write_atomic
 from .geometry import Geometry
+from .progress import progress_bar
 from .trajectory import Trajectory
 
 FPS = 25.0            #: frames per second of playback
@@ -153,7 +154,7 @@ def figure(traj: Trajectory, *, fps: float = FPS, speed: float = 1.0, max_frames
     animated_ids = list(range(n_static, n_static + len(animated)))
 
     frames = []
-    bar = _progress(len(idx), progress)
+    bar = progress_bar(len(idx), progress, "frame", "animation")
     for k in range(len(idx)):
         hit = sorted(by_frame.get(k, ()))
         hx, hy, wx, wy, labels, where = [], [], [], [], [], []
@@ -188,10 +189,8 @@ def figure(traj: Trajectory, *, fps: float = FPS, speed: float = 1.0, max_frames
                                  "text": [str(names[c]) for c in resting] or [""]}
         data = [update[trace["name"]] for trace in animated]
         frames.append({"name": str(k), "t": float(tf[k]), "data": data, "traces": animated_ids})
-        if bar is not None:
-            bar.update()
-    if bar is not None:
-        bar.close()
+        bar.update()
+    bar.close()
 
     # the first frame's state is the figure's own
     for trace, update in zip(animated, frames[0]["data"]):
@@ -331,14 +330,6 @@ def _rest_intervals(traj: Trajectory) -> dict[int, list[tuple[float, float]]]:
     for k, t in since.items():
         out.setdefault(k, []).append((t, math.inf))
     return out
-
-
-def _progress(total: int, enabled: bool):
-    if not enabled:
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=total, unit="frame", desc="animation", delay=0.5, leave=False)
 
 
 # --- the page --------------------------------------------------------------------------------

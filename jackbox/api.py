@@ -12,7 +12,6 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Any
 
 import numba
 import numpy as np
@@ -20,6 +19,7 @@ import numpy as np
 from . import __version__, loader
 from . import kernel as K
 from .errors import NonFiniteStateError, SimulationError
+from .progress import progress_bar
 from .scene import Scene, load_scene
 from .trajectory import Trajectory
 
@@ -180,7 +180,7 @@ def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
         rest = np.zeros(kernel.N_CONTACT, np.int64)
         tol = tolerances(run, kernel)
     i = n_rec = n_ev = 0
-    bar = _progress(run.n_steps, progress)
+    bar = progress_bar(run.n_steps, progress, "step")
     t_run = time.perf_counter()
     try:
         while i < run.n_steps:
@@ -193,8 +193,7 @@ def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
                 i_new, n_rec, n_ev, status = kernel.integrate(
                     q, qd, run.p, 0.0, run.dt, i, i_end, run.n_steps, run.record_every,
                     rec_t, rec_q, rec_qd, rec_e, n_rec, ev_t, ev_k, n_ev)
-            if bar is not None:
-                bar.update(i_new - i)
+            bar.update(i_new - i)
             i = i_new
             if status == K.IMPACT_LOG_FULL:
                 ev_t, ev_k, ev_kind = (np.concatenate([a, np.zeros_like(a)]) for a in (ev_t, ev_k, ev_kind))
@@ -209,8 +208,7 @@ def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
                     f"t = {i * run.dt:.6g} s; the contacts may be wedged. Try method='naive' "
                     f"or a different start.")
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
     run_seconds = time.perf_counter() - t_run
     extra = {"kernel": {"cache": compiled["cache"], "load_seconds": load_seconds,
                         "run_seconds": run_seconds,
@@ -222,11 +220,3 @@ def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
     return finish(run, rec_t[:n_rec], rec_q[:n_rec], rec_qd[:n_rec], rec_e[:n_rec],
                   ev_t[hit].copy(), ev_k[hit].copy(), extra,
                   ev_t[~hit].copy(), ev_k[~hit].copy(), ev_kind[~hit].copy())
-
-
-def _progress(total: int, enabled: bool) -> Any:
-    if not enabled:
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=total, unit="step", unit_scale=True, delay=0.5, leave=False)

@@ -31,7 +31,6 @@ from __future__ import annotations
 import hashlib
 import os
 import pickle
-import sys
 import time
 from contextlib import contextmanager
 
@@ -40,6 +39,7 @@ import numpy as np
 
 from . import loader
 from .errors import SimulationError
+from .progress import progress_bar
 
 #: the least ``allowed-failures`` of a local cluster: deaths of workers a chunk survives
 ALLOWED_FAILURES = 10
@@ -149,16 +149,13 @@ def _client(distributed, address, n_workers, threads_per_worker, connect_timeout
 
 
 def _run(distributed, client, fn, spec, bounds, threads, progress, log):
-    from tqdm import tqdm
-
     token = hashlib.sha256(pickle.dumps((fn.__module__, fn.__qualname__, spec))).hexdigest()[:16]
     futures = [client.submit(_call, fn, spec, start, stop, threads,
                              key=f"jackbox-{fn.__name__}-{start}-{stop}-{token}")
                for start, stop in bounds]
     index = {future.key: i for i, future in enumerate(futures)}
     results: list[dict | None] = [None] * len(bounds)
-    bar = tqdm(total=sum(stop - start for start, stop in bounds), unit="member", desc="ensemble",
-               file=sys.stderr, disable=not progress, delay=0.5, leave=False)
+    bar = progress_bar(sum(stop - start for start, stop in bounds), progress, "member", "ensemble")
     started = time.perf_counter()
     try:
         done = distributed.as_completed(futures, with_results=True, raise_errors=False,

@@ -37,6 +37,7 @@ from . import __version__, api, loader
 from . import kernel as K
 from .errors import SimulationError
 from .fileio import write_atomic
+from .progress import progress_bar
 from .scene import COORDS, RATES, Scene, load_scene
 
 #: members per kernel call when the progress bar is on (each call is parallel inside)
@@ -97,7 +98,7 @@ def plan(scene, n: int, perturb: dict[str, float] | None = None, params: dict[st
         raise SimulationError(f"a grid over {len(pert)} coordinates needs n = m^{len(pert)} members, got n = {n}")
     sw = []
     for name, rng in (sweep or {}).items():
-        slots = _param_slots(scene, name)
+        _param_slots(scene, name)      # refuses an unknown name
         try:
             lo, hi = (float(v) for v in rng)
         except (TypeError, ValueError):
@@ -106,7 +107,6 @@ def plan(scene, n: int, perturb: dict[str, float] | None = None, params: dict[st
             raise SimulationError(f"sweep: {name} bounds must be finite")
         if name in ("e", "e_ground", "restitution") and not (0 <= min(lo, hi) and max(lo, hi) <= 1):
             raise SimulationError(f"sweep: restitution must lie in [0, 1], got {lo}..{hi}")
-        del slots
         sw.append((name, lo, hi))
     if len(sw) > 2:
         raise SimulationError("sweep: at most two parameters (a line or a grid)")
@@ -393,17 +393,15 @@ def _execute(fn, spec, chunk, threads, scheduler, dask_local, progress, log, ste
                 raise SimulationError(f"threads must be between 1 and {numba.config.NUMBA_NUM_THREADS}, got {threads}")
             numba.set_num_threads(threads)
         n_threads = numba.get_num_threads()
-        bar = _progress(n, progress)
+        bar = progress_bar(n, progress, "member", kind)
         parts = []
         try:
             for a, b in bounds:
                 parts.append(fn(spec, a, b))
-                if bar is not None:
-                    bar.update(b - a)
+                bar.update(b - a)
         finally:
             numba.set_num_threads(old)
-            if bar is not None:
-                bar.close()
+            bar.close()
         used = "this process"
     seconds = time.perf_counter() - t0
     merged = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
@@ -504,11 +502,3 @@ def _json_default(value):
     if isinstance(value, np.ndarray):
         return value.tolist()
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
-
-
-def _progress(total: int, enabled: bool):
-    if not enabled:
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=total, unit="member", unit_scale=True, delay=0.5, leave=False)

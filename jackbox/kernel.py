@@ -1004,12 +1004,10 @@ def integrate_exact(q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record
     next_rec = (i_begin // record_every + 1) * record_every
     i = i_begin
     while i < i_end:
-        have_trial = False
         if m == 0:
             # Free flight far from every wall: the lean loop, on floats only.
             i_stop = min(i_end, next_rec)
             i_fly, qt, vt, clear, qn, vn = fly(t0, dt, i, i_stop, tuple_of(q), tuple_of(qd), p, tol, clear)
-            have_trial = i_fly < i_stop      # fly stopped at a step it did not take: its trial
             if i_fly > i:
                 for d in range(N_DOF):
                     q[d] = qt[d]
@@ -1021,16 +1019,14 @@ def integrate_exact(q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record
                                                   rec_energy, box, i == next_rec, next_rec, record_every)
                 if i == i_end:
                     break
-            if not have_trial:     # stopped only to record: fly on
+            if i_fly == i_stop:    # stopped only to record: fly on
                 continue
         t = t0 + i * dt
         t_next = t0 + (i + 1) * dt
         # The step with gap rows: quiet when every gap, at both ends of the
         # step, is further from contact than the step can move it.
         quiet = False
-        if m == 0:
-            if not have_trial:
-                qn, vn, _ = grid_step(t, t_next, accel_time_s(t, p), tuple_of(q), tuple_of(qd), dt, p)
+        if m == 0:             # fly() stopped before this step and left its trial in qn, vn
             band = step_reach(qd, vn, dt, tol) - half
             for d in range(N_DOF):
                 qb[d] = qn[d]
