@@ -139,8 +139,8 @@ def simulate(scene, seconds=1.0, reject_stall=True, **kw):
     run that stalls, or chatters on so long that it is stopped, is rejected
     rather than failed.
     """
-    saved = api.CHUNK, api._progress
-    api.CHUNK, api._progress = 64, lambda total, enabled: _Watch(seconds)
+    saved = api.CHUNK, api.progress_bar
+    api.CHUNK, api.progress_bar = 64, lambda total, enabled, unit, desc=None: _Watch(seconds)
     try:
         return jackbox.simulate(scene, progress=True, **kw)
     except (jackbox.SimulationError, RunTooLong) as exc:
@@ -148,7 +148,7 @@ def simulate(scene, seconds=1.0, reject_stall=True, **kw):
             reject()
         raise
     finally:
-        api.CHUNK, api._progress = saved
+        api.CHUNK, api.progress_bar = saved
 
 
 # --- checks -----------------------------------------------------------------------------
