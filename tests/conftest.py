@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import tempfile
 import textwrap
 from pathlib import Path
 
@@ -10,6 +12,33 @@ import pytest
 import jackbox
 
 BUILTINS = ("shaken", "spring", "drop")
+
+_saved_cache_env: list[str | None] = []
+
+
+def pytest_configure(config):
+    """Compile into a cache of the test suite's own, never the user's ``~/.cache/jackbox``.
+
+    ``$JACKBOX_TEST_CACHE_DIR`` if set, else pytest's cache folder
+    (``.pytest_cache/d/jackbox``: kept between runs, so a second run is warm;
+    ``pytest --cache-clear`` starts from an empty one), else a temporary folder.
+    Subprocesses (the CLI, Dask workers) inherit it through the environment.
+    """
+    folder = os.environ.get("JACKBOX_TEST_CACHE_DIR")
+    if not folder:
+        cache = getattr(config, "cache", None)
+        folder = str(cache.mkdir("jackbox")) if cache is not None else tempfile.mkdtemp(prefix="jackbox-tests-")
+    _saved_cache_env.append(os.environ.get("JACKBOX_CACHE_DIR"))
+    os.environ["JACKBOX_CACHE_DIR"] = folder
+
+
+def pytest_unconfigure(config):
+    if _saved_cache_env:
+        saved = _saved_cache_env.pop()
+        if saved is None:
+            os.environ.pop("JACKBOX_CACHE_DIR", None)
+        else:
+            os.environ["JACKBOX_CACHE_DIR"] = saved
 
 #: A box shaken up and down by a hand (prescribed motion), a polygon jack inside.
 PRESCRIBED = """
