@@ -1,8 +1,9 @@
 """Stage 4: run the compiler for a scene and put the module where the runtime finds it.
 
 * built-in scenes: ``generated/<name>.py`` (committed; ``jackbox build`` rewrites it);
-* any other scene (a user's file, or a built-in changed with ``--set`` in a way
-  that changes its structure): ``<cache>/models/<name>_<hash>.py``
+* any other structure (a user's file, or a built-in changed with ``--set`` in a
+  way that changes its structure): ``<cache>/models/<hash>.py``; a scene with a
+  built-in's structure uses the committed module
   (:func:`jackbox.loader.model_path` decides which).
 
 Writes are atomic (temporary file, then rename) and skipped when the text is

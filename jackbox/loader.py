@@ -2,11 +2,13 @@
 
 Two content-addressed steps keep compiled code from ever going stale:
 
-1. The *model module*: the committed ``generated/<name>.py`` of a built-in
-   scene when its recorded model hash is the scene's, otherwise
-   ``<cache>/models/<name>_<hash>.py``, generated on first use. The hash
-   covers the scene's structure and the compiler's source.
-2. The *kernel module*: ``<cache>/kernels/<name>_<key>.py``, the text of the
+1. The *model module*: a committed ``generated/<name>.py`` whose recorded
+   model hash is the scene's (a built-in, or any scene of the same structure:
+   a copy or a renamed scene compiles nothing), otherwise
+   ``<cache>/models/<hash>.py``, generated on first use and shared by every
+   scene of that structure. The hash covers the scene's structure (not its
+   name) and the compiler's source.
+2. The *kernel module*: ``<cache>/kernels/<stem>_<key>.py``, the text of the
    model module, a binding section and the text of :mod:`jackbox.kernel`, where
    ``key`` hashes all of that text and Numba's version. Numba caches its machine
    code beside that file (``cache=True``); a changed model or kernel gives a new
@@ -66,14 +68,29 @@ def recorded_hash(path: Path) -> str | None:
     return None
 
 
+def committed_model(digest: str) -> Path | None:
+    """The committed module in ``generated/`` with this model hash, if there is one."""
+    for path in sorted(GENERATED_DIR.glob("*.py")):
+        if recorded_hash(path) == digest:
+            return path
+    return None
+
+
+def cached_model_path(scene: Scene) -> Path:
+    """Where a scene's module goes in the cache: named by its model hash, not by the scene."""
+    return cache_dir() / "models" / f"{model_hash(scene.structure())}.py"
+
+
 def model_path(scene: Scene) -> Path:
-    """Where the current generated module of `scene` is, or will be written."""
+    """Where the current generated module of `scene` is, or will be written.
+
+    The structure decides, not the name: a scene with a built-in's structure
+    (a copy of ``drop.toml`` under another name, say) uses the committed module.
+    """
     digest = model_hash(scene.structure())
-    if scene.builtin:
-        committed = GENERATED_DIR / f"{scene.name}.py"
-        if recorded_hash(committed) == digest:
-            return committed
-    return cache_dir() / "models" / f"{_ident(scene.name)}_{digest}.py"
+    if scene.builtin and recorded_hash(GENERATED_DIR / f"{scene.name}.py") == digest:
+        return GENERATED_DIR / f"{scene.name}.py"
+    return committed_model(digest) or cached_model_path(scene)
 
 
 def ensure_model(scene: Scene, log=None) -> Path:
@@ -122,8 +139,8 @@ def load_kernel(model_file: Path, kernel_text: str | None = None) -> ModuleType:
         if stamp is not None:
             _stamped[stamp] = _loaded[key]
         return _loaded[key]
-    # cached models are <name>_<hash>.py, committed ones <name>.py
-    stem = model_file.stem.rsplit("_", 1)[0] if model_file.parent.name == "models" else model_file.stem
+    # committed models are <name>.py, cached ones <model hash>.py
+    stem = model_file.stem
     path = cache_dir() / "kernels" / f"{_ident(stem)}_{key}.py"
     if not path.exists() or path.read_text() != text:
         write_atomic(path, text)
