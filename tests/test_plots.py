@@ -27,7 +27,7 @@ from jackbox.cli import main
 from jackbox.geometry import Geometry
 from jackbox.scene import contact_gaps
 
-from .conftest import run_cli
+from .conftest import FREE_FLOAT, run_cli, write_scene
 
 # --- helpers -------------------------------------------------------------------------------
 
@@ -482,12 +482,12 @@ def test_help_of_the_new_commands(capsys):
 
 
 def test_geometry_of_a_saved_run_follows_its_overrides_not_the_file(tmp_path):
-    # drop.toml has a square jack; --set jack.shape=cross changes the run's
-    # shape, and the saved file must draw a cross
-    from jackbox.geometry import Geometry
-
-    scene = jackbox.load_scene("drop", {"jack.shape": "cross"})
+    # the file has a cross jack; --set jack.shape=square changes the run's shape,
+    # and the saved file must draw a square. (Both structures are the tests'
+    # weightless square and cross, compiled for other tests: nothing new compiles.)
+    path = write_scene(tmp_path, FREE_FLOAT.replace('shape = "square"', 'shape = "cross"'), "crossed.toml")
+    scene = jackbox.load_scene(path, {"jack.shape": "square"})
     jackbox.simulate(scene, t_end=0.01).save(tmp_path / "run.npz")
     geometry = Geometry.from_trajectory(jackbox.Trajectory.load(tmp_path / "run.npz"))
-    assert geometry.shape == "cross"
-    assert Geometry.from_trajectory(jackbox.simulate("drop", t_end=0.01)).shape == "square"
+    assert geometry.shape == "square"
+    assert Geometry.from_trajectory(jackbox.simulate(path, t_end=0.01)).shape == "cross"
