@@ -22,18 +22,20 @@ G = 9.81
 L = 1.0          # inner half-width of every box below
 A_JACK = 0.25    # half-size of the square jack
 
-#: A box held still by a hand; a square jack starts at rest, flat, at height y0.
+#: A box held by a hand that can move it up and down by y = A (1 - cos(w t)), here
+#: held still (A = 0); a square jack starts at rest, flat, at the box's centre.
 STILL = """
 name = "still"
 [params]
-y0 = 0.0
+A = 0.0
+w = 20.0
 [box]
 inner_half_width = 1.0
 wall_thickness = 0.1
 mass = 4.0
 motion = "prescribed"
 x = "0"
-y = "0"
+y = "A*(1 - cos(w*t))"
 theta = "0"
 [jack]
 shape = "square"
@@ -51,9 +53,8 @@ t_end = 2.0
 dt = 1e-3
 """
 
-#: The same box moved up and down by y = A (1 - cos(w t)); the jack starts resting on its floor.
-SHAKEN_FLOOR = STILL.replace('y = "0"', 'y = "A*(1 - cos(w*t))"').replace(
-    "[params]\ny0 = 0.0", "[params]\nA = 0.05\nw = 20.0").replace(
+#: The same box moved (A = 0.05), the jack resting on its floor: one structure, one compile.
+SHAKEN_FLOOR = STILL.replace("A = 0.0", "A = 0.05").replace(
     "q = [0, 0, 0, 0, 0, 0]", "q = [0, 0, 0, 0, -0.75, 0]").replace('name = "still"', 'name = "floor"')
 
 
@@ -117,7 +118,9 @@ def test_zeno_bounces_accumulate_into_rest_at_the_analytic_time(still, e):
     assert traj.impact_t.max() <= changes["t"][0]
     after = traj.t > t_rest + 1e-3
     assert np.all(np.abs(traj.q[after, 4] - (A_JACK - L)) < 1e-15)
-    assert np.all(traj.qd[after] == 0.0)
+    # no motion: the held contacts' rates are projected to zero (a rate of 1e-33 rad/s
+    # is left at e = 0.7: round-off of the hand's motion terms, which are 0 * cos(w t))
+    assert np.abs(traj.qd[after]).max() < 1e-30
     assert np.ptp(traj.energy[after]) == 0.0
     # every bounce left at e times the speed it came in with: both corners hit
     # together at t_k = t0 (1 + 2 e (1 - e^k) / (1 - e)). Located where the gap is
