@@ -4,10 +4,9 @@ states (hypothesis), and named hard cases.
 Every run records every step and is checked against what does not depend on
 the code under test:
 
-* no gap below -1e-9 L at any recorded sample, evaluated by
+* no gap below -2e-12 L at any recorded sample, evaluated by
   :func:`jackbox.scene.contact_gaps` (numpy, not the generated code): the exact
-  method locates every event at -0.5e-12 L, and 1e-9 L is the tolerance the
-  scene format itself grants a start state;
+  method locates every event at -0.5e-12 L;
 * a finite state everywhere;
 * the energy column equals kinetic + gravity recomputed here from q and qd;
 * with gravity only (no forces, no potential) the energy never rises: between
@@ -17,6 +16,13 @@ the code under test:
   step with one, by RK4's error on the constrained motion);
 * with no gravity, total linear and angular momentum (orbital r x m v plus
   spins J omega) are kept: every impulse acts on both bodies at one point.
+
+Each tolerance is a small factor over what the code was measured to achieve,
+with the measurement beside it. While the kernel is known to stall
+(KNOWN_STALL), the property tests reject a run that stalls or needs more
+than EVENT_BUDGET contact events (a count, so the same runs on any machine);
+each test then ends with a RejectedRuns warning that lists them and why, and
+fails when more than MAX_REJECTED of its examples were rejected.
 
 The named cases check closed-form answers: 1D collisions at mass ratios
 1e-3 .. 1e3, a corner hit, hit times of a jack at 1e4 L/s with dt = 0.01 s,
@@ -33,12 +39,15 @@ weightless cross defined below) and everything random is a runtime value
 from __future__ import annotations
 
 import functools
+import inspect
 import json
 import math
+import re
 import subprocess
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -47,7 +56,7 @@ from hypothesis import HealthCheck, Phase, assume, given, reject, settings
 from hypothesis import strategies as st
 
 import jackbox
-from jackbox import api
+from jackbox import api, loader
 from jackbox.scene import contact_gaps
 
 from .conftest import FREE_FLOAT, PRESCRIBED, write_scene
@@ -55,14 +64,48 @@ from .conftest import FREE_FLOAT, PRESCRIBED, write_scene
 EPS = np.finfo(float).eps
 #: events are located where a gap is -EVENT/2 (in units of L): jackbox.api.EVENT_TOL
 EVENT = 1e-12
-#: the gap every recorded sample must keep, in units of the box's inner half-width L
-GAP_FLOOR = -1e-9
-#: energy changes a step may show with no resting contact in it, relative to the
-#: run's energy scale: evaluating the energy and applying impulses round off at a
-#: few eps of that scale per operation; a Zeno cascade can put hundreds of
-#: impulses in one step, and 1e-12 still leaves a factor of ~10 above their
-#: random walk, while the energy gains found so far were 3e-7 and more.
-ROUND_OFF = 1e-12
+#: the gap every recorded sample must keep, in units of the box's inner half-width L:
+#: 4 times the depth where events are located (-EVENT/2), which leaves room for the
+#: round-off of numpy's gaps at positions up to ~1e3 L (eps |x| ~ 2e-13 L). Measured,
+#: over ~1000 random scenes and every named case: -5.0e-13 L, exactly the event depth.
+#: (Was -1e-9 L, the tolerance the scene format grants a start state.)
+GAP_FLOOR = -4 * EVENT / 2
+#: the energy change a step may show from round-off alone, relative to the run's
+#: energy scale, per sqrt(1 + impulses in the step): evaluating the energy and
+#: applying an impulse each round off at an eps or two of the scale, and these add
+#: up as a random walk (a Zeno cascade or a fast jack puts 100-350 impulses in a step).
+#: Measured (max over steps of |dE| / sqrt(1 + n)): 6e-16 over ~1000 random scenes,
+#: 5.5e-16 with 127 impulses a step (the fast spinning jack), 1e-15 with 348 (the
+#: long elastic run); 16 eps = 3.6e-15 is 3.5 times the worst. (It was 1e-12 flat,
+#: ~1000 times what any step shows.)
+ROUND_OFF = 16 * EPS
+#: the energy column against kinetic + gravity recomputed here, relative to the
+#: run's energy scale: two sums of the same eight products in another order, each
+#: within ~10 eps of the scale at worst. Measured: 5.7e-16 (2.6 eps) at most over
+#: 1000 random scenes and the named cases. (Was 1e-13, 450 eps.)
+ENERGY_EVAL = 16 * EPS
+#: a step with a persistent contact follows RK4 on a constrained, curved motion, so its
+#: energy may change by RK4's error, O((omega dt)^5) of the scale (omega: the run's
+#: largest rate), but by no more than REST_CAP: omega dt is drawn up to ~2, where
+#: (omega dt)^5 alone allows anything. Measured, over ~230 random runs with resting
+#: contact (of ~1000): a rise of at most 4.1e-9 in a step (omega dt = 0.37, weightless
+#: square; the next worst 7e-10), 1.7e-10 with gravity; the cap is 2.5 times the worst.
+REST_CAP = 1e-8
+#: the same for the total angular momentum of a weightless run: its drift may be
+#: ANGULAR (free flight and impulses, round-off: measured 8.4e-14 over ~500 runs
+#: without resting contact, so 1e-12 is already 12x and stays) plus, per resting
+#: step, (omega dt)^5 but no more than ANGULAR_REST_CAP. Measured: one resting step
+#: changes it by 8e-11 at most, and drift / resting steps is 4.6e-11 at most (10
+#: resting steps at omega dt = 0.72), over ~150 weightless runs with resting contact;
+#: the cap is 2.5 times the worst step.
+ANGULAR = 1e-12
+ANGULAR_REST_CAP = 2e-10
+#: horizontal momentum of the named drops under gravity and a frictionless ground
+#: (vertical forces only), relative to its scale: round-off of the impulses' x
+#: components. Measured: 3.1e-15 (the elastic drop, 111 impacts), 5.6e-16 (the plastic
+#: one). (Was 1e-13; the random drops keep 1e-13: measured up to 9.7e-15 there, the
+#: ground's vertical impulses can be far larger than the horizontal momentum.)
+PX_ROUND_OFF = 1e-14
 
 #: The kernel stops with "more than 10000 contact events in the step" (STALLED)
 #: in states that are physically fine (see the xfail tests at the end of the
@@ -70,6 +113,24 @@ ROUND_OFF = 1e-12
 #: examples that stall, so the other invariants keep being checked; when the
 #: xfail tests start passing (strict: they then fail), set this to False.
 KNOWN_STALL = True
+#: A property-test run may log at most this many contact events (impulses and contact
+#: mode changes); one that needs more is stopped there and, while KNOWN_STALL, rejected
+#: like a stall: a jack chattering on a floor with e ~ 0 logs 1e6 events and more in
+#: 1 s of simulated time (minutes of CPU). A count, not a clock, so the same draws are
+#: rejected on a loaded machine and an idle one. Measured over 400 random runs:
+#: 99% of the runs that end log under 3500 events, the largest 21150 (~1 s here: the
+#: kernel logs 2e4-3e4 events per second of CPU while it chatters); 2e4 keeps the cost of
+#: a rejected run at about the old 1 s wall-clock watchdog. Most runs over budget
+#: overflow within one step: a stall in all but name (STALLED counts the kernel's
+#: passes through a step, 10000 at most, and one pass can log several events).
+EVENT_BUDGET = 20_000
+#: A property test fails when it rejects more than this fraction of PROPERTY.max_examples
+#: runs (stalled or over budget). Measured over 150 draws per test: 1% (prescribed),
+#: 5% (cross), 11% (drop), 12% (square) of the runs, in clusters: hypothesis tries
+#: draws near a rejected one, up to 6 of them rejected in a row. Half (12 of 25)
+#: leaves room for two such clusters; a regression that makes most draws stall
+#: fails instead of passing as "all rejected".
+MAX_REJECTED = 1 / 2
 
 #: A weightless cross: the second free structure (four point masses, not a plate).
 CROSS = """
@@ -114,41 +175,130 @@ def base(structure: str):
     return scene_from_text(text, f"{structure}.toml")
 
 
-class RunTooLong(Exception):
-    pass
+class OverBudget(Exception):
+    """A run stopped because it needed more contact events than its budget."""
+
+    def __init__(self, budget, n_events, step, t):
+        self.budget, self.n_events, self.step, self.t = budget, n_events, step, t
+        super().__init__(f"more than {budget} contact events by the end of the step from t = {t:.6g} s "
+                         f"(step {step}; {n_events} before it)")
 
 
-class _Watch:
-    """Stands in for the progress bar: stops a run between chunks once it takes too long."""
+class _Budgeted:
+    """A kernel module whose exact loop ends the run when its event log is full.
 
-    def __init__(self, seconds):
-        self.deadline = time.perf_counter() + seconds
-
-    def update(self, n):
-        if time.perf_counter() > self.deadline:
-            raise RunTooLong
-
-    def close(self):
-        pass
-
-
-def simulate(scene, seconds=1.0, reject_stall=True, **kw):
-    """jackbox.simulate in chunks of 64 steps, stopped after `seconds` of wall time.
-
-    (Chunking never changes a result: tests/test_kernel.py.) With KNOWN_STALL, a
-    run that stalls, or chatters on so long that it is stopped, is rejected
-    rather than failed.
+    simulate() sizes the log to the budget (jackbox.api.LOG_SIZE; api makes it
+    8 N_CONTACT at least), so the first IMPACT_LOG_FULL means the run needs more
+    events than that; the kernel has undone the step that did not fit, so the
+    count and the step are exact.
     """
-    saved = api.CHUNK, api.progress_bar
-    api.CHUNK, api.progress_bar = 64, lambda total, enabled, unit, desc=None: _Watch(seconds)
+
+    def __init__(self, module):
+        self._module = module
+
+    def __getattr__(self, name):
+        return getattr(self._module, name)
+
+    def integrate_exact(self, *args):
+        i, n_rec, n_ev, status = self._module.integrate_exact(*args)
+        if status == self._module.IMPACT_LOG_FULL:
+            a = inspect.signature(self._module.integrate_exact.py_func).bind(*args).arguments
+            raise OverBudget(len(a["ev_t"]), n_ev, i, a["t0"] + i * a["dt"])
+        return i, n_rec, n_ev, status
+
+
+class _BudgetLoader:
+    """jackbox.loader as jackbox.api sees it inside simulate(): kernels come _Budgeted."""
+
+    def __getattr__(self, name):
+        return getattr(loader, name)
+
+    def kernel_for(self, scene, log=None):
+        return _Budgeted(loader.kernel_for(scene, log))
+
+    def compile_kernel(self, module, *args, **kw):
+        return loader.compile_kernel(module._module, *args, **kw)
+
+    def is_cached(self, module, method):
+        return loader.is_cached(module._module, method)
+
+
+class RejectedRuns(UserWarning):
+    """A property test rejected runs (stalled, or over the event budget): coverage it lacks."""
+
+
+class _Rejections:
+    """The runs of the test now running (simulate() with reject_stall) and those rejected."""
+
+    def __init__(self):
+        self.runs, self.rejected = 0, []
+
+    def reject(self, scene, dt, exc):
+        P = scene.params()
+        draw = (f"L = {P['L']:.3g}, m_jack/m_box = {P['m_jack'] / P['m_box']:.3g}, "
+                f"e = {P['e']:.3g}, e_ground = {P['e_ground']:.3g}, g = {P['g']:.3g}, dt = {dt:.3g}, "
+                f"|qd0| <= {np.abs(scene.qd0).max():.3g}")
+        if "a_jack" in P:
+            draw += f", a/L = {P['a_jack'] / P['L']:.3g}"
+        if "amp" in P:
+            draw += f", amp = {P['amp']:.3g}, freq = {P['freq']:.3g}"
+        if isinstance(exc, OverBudget):
+            why = f"over budget: {exc}"
+        else:
+            at = re.search(r"at t = \S+ s", str(exc))
+            why = f"STALLED {at.group() if at else exc}"
+        self.rejected.append(f"{why} [{draw}]")
+        limit = int(MAX_REJECTED * PROPERTY.max_examples)
+        if len(self.rejected) > limit:
+            raise AssertionError(
+                f"{len(self.rejected)} runs rejected, more than {limit} ({MAX_REJECTED:.2g} of "
+                f"max_examples = {PROPERTY.max_examples}): a regression, not the known stalls?\n  "
+                + "\n  ".join(self.rejected))
+
+    def summary(self, name):
+        return (f"{name}: rejected {len(self.rejected)} of {self.runs} runs "
+                f"(KNOWN_STALL; allowed {int(MAX_REJECTED * PROPERTY.max_examples)}):\n  "
+                + "\n  ".join(self.rejected))
+
+
+_rejections = _Rejections()
+
+
+@pytest.fixture(autouse=True)
+def report_rejected_runs(request):
+    """After each test, one RejectedRuns warning listing what it rejected (pytest shows it)."""
+    global _rejections
+    _rejections = _Rejections()
+    yield
+    if _rejections.rejected:     # (shown at the test's own line)
+        path, line, _ = request.node.location
+        warnings.warn_explicit(RejectedRuns(_rejections.summary(request.node.name)), RejectedRuns,
+                               str(request.config.rootpath / path), line + 1)
+
+
+def simulate(scene, budget=EVENT_BUDGET, reject_stall=True, **kw):
+    """jackbox.simulate, stopped (OverBudget) once the run needs more than `budget` events.
+
+    With KNOWN_STALL and reject_stall, a run that stalls or goes over the budget
+    is rejected (hypothesis draws another) rather than failed, and noted for the
+    test's RejectedRuns warning; more than MAX_REJECTED of them fail the test.
+    Nothing else changes: the run is jackbox.simulate's, with an event log
+    sized to the budget at the start.
+    """
+    saved = api.LOG_SIZE, api.loader
+    api.LOG_SIZE, api.loader = budget, _BudgetLoader()
     try:
-        return jackbox.simulate(scene, progress=True, **kw)
-    except (jackbox.SimulationError, RunTooLong) as exc:
-        if reject_stall and KNOWN_STALL and (isinstance(exc, RunTooLong) or "contact events in the step" in str(exc)):
+        if reject_stall:
+            _rejections.runs += 1
+        return jackbox.simulate(scene, **kw)
+    except (jackbox.SimulationError, OverBudget) as exc:
+        stalled = isinstance(exc, OverBudget) or "contact events in the step" in str(exc)
+        if reject_stall and KNOWN_STALL and stalled:
+            _rejections.reject(scene, kw.get("dt", scene.dt), exc)
             reject()
         raise
     finally:
-        api.CHUNK, api.progress_bar = saved
+        api.LOG_SIZE, api.loader = saved
 
 
 # --- checks -----------------------------------------------------------------------------
@@ -183,12 +333,21 @@ def energy_scale(traj, P):
     return max(float((kinetic(traj, P) + gravity).max()), 1e-300)
 
 
-def steps_with(times, traj):
-    """(N-1,) True for each step (t_i, t_i+1] that contains one of `times`."""
-    hit = np.zeros(len(traj.t) - 1, bool)
-    idx = np.searchsorted(traj.t, times, side="left") - 1
-    hit[np.clip(idx, 0, len(hit) - 1)] = True
-    return hit
+def impulses_per_step(traj):
+    """(N-1,) the number of impulses in each step (t_i, t_i+1] (those at t_0 count in the first)."""
+    idx = np.searchsorted(traj.t, traj.impact_t, side="left") - 1
+    return np.bincount(np.clip(idx, 0, len(traj.t) - 2), minlength=len(traj.t) - 1)
+
+
+def round_off(traj):
+    """(N-1,) the round-off each step may show, relative to a scale: ROUND_OFF sqrt(1 + impulses)."""
+    return ROUND_OFF * np.sqrt(1.0 + impulses_per_step(traj))
+
+
+def omega_dt(traj, P):
+    """The run's largest rate (angular, or speed / L) times its step."""
+    omega = np.abs(traj.qd[:, [2, 5]]).max() + np.abs(traj.qd[:, [0, 1, 3, 4]]).max() / P["L"]
+    return omega * np.diff(traj.t).max()
 
 
 def resting_steps(traj):
@@ -209,33 +368,33 @@ def resting_steps(traj):
 def check_energy(traj, scene, elastic=False):
     """Gravity-only scene: energy as recomputed, never rising, kept between impacts.
 
-    A step with a persistent contact in it follows RK4 on a constrained, curved
-    motion: its energy may change by RK4's error, O((omega dt)^5) of the scale,
-    with omega the largest rate (angular, or speed / L) of the run.
+    Steps with no persistent contact: a rise of round-off at most (ROUND_OFF per
+    sqrt(1 + impulses in the step)); with no impulse either (or e = 1), no change
+    beyond that. A step with a persistent contact in it follows RK4 on a
+    constrained, curved motion: its energy may rise by RK4's error, (omega dt)^5
+    of the scale with omega the largest rate (angular, or speed / L) of the run,
+    and never by more than REST_CAP.
     """
     P = scene.params()
     scale = energy_scale(traj, P)
     computed = kinetic(traj, P) + P["g"] * (P["m_box"] * traj.q[:, 1] + P["m_jack"] * traj.q[:, 4])
-    np.testing.assert_allclose(traj.energy, computed, rtol=0, atol=1e-13 * scale)
+    np.testing.assert_allclose(traj.energy, computed, rtol=0, atol=ENERGY_EVAL * scale)
     dE = np.diff(traj.energy) / scale
     resting = resting_steps(traj)
-    impacts = steps_with(traj.impact_t, traj)
-    free = ~resting
-    if free.any():
-        i = np.flatnonzero(free)[np.argmax(dE[free])]
-        assert dE[i] <= ROUND_OFF, (
-            f"energy rose by {dE[i]:.3g} of its scale in the step to t = {traj.t[i + 1]:.9g} s, "
-            f"impacts there: {[scene.constraint_names[k] for t, k in zip(traj.impact_t, traj.impact_constraint) if traj.t[i] < t <= traj.t[i + 1]]}")
-        # between impacts nothing acts but gravity: kept to round-off
-        calm = free & ~impacts
-        if calm.any():
-            assert np.abs(dE[calm]).max() <= ROUND_OFF, np.abs(dE[calm]).max()
-        if elastic:
-            assert np.abs(dE[free]).max() <= ROUND_OFF, np.abs(dE[free]).max()
-    if resting.any():
-        dt = np.diff(traj.t).max()
-        omega = np.abs(traj.qd[:, [2, 5]]).max() + np.abs(traj.qd[:, [0, 1, 3, 4]]).max() / P["L"]
-        assert dE[resting].max() <= ROUND_OFF + (omega * dt) ** 5, (dE[resting].max(), omega * dt)
+    n_imp = impulses_per_step(traj)
+    allowed = round_off(traj) + np.where(resting, min(omega_dt(traj, P) ** 5, REST_CAP), 0.0)
+    i = np.argmax(dE - allowed)
+    assert dE[i] <= allowed[i], (
+        f"energy rose by {dE[i]:.3g} of its scale (allowed {allowed[i]:.3g}) in the step to "
+        f"t = {traj.t[i + 1]:.9g} s ({'with' if resting[i] else 'no'} resting contact, omega dt = "
+        f"{omega_dt(traj, P):.3g}), impacts there: {[scene.constraint_names[k] for t, k in zip(traj.impact_t, traj.impact_constraint) if traj.t[i] < t <= traj.t[i + 1]]}")
+    # between impacts nothing acts but gravity: kept to round-off (and by elastic impulses)
+    kept = ~resting & ((n_imp == 0) | elastic)
+    if kept.any():
+        i = np.flatnonzero(kept)[np.argmax(np.abs(dE[kept]) - allowed[kept])]
+        assert abs(dE[i]) <= allowed[i], (
+            f"energy changed by {dE[i]:.3g} of its scale (allowed {allowed[i]:.3g}) in the step to "
+            f"t = {traj.t[i + 1]:.9g} s with {n_imp[i]} impulses (elastic: {elastic})")
 
 
 def momenta(traj, P):
@@ -332,7 +491,7 @@ def test_random_drops_never_penetrate_nor_gain_energy(data):
     check_energy(traj, scene, elastic=P["e"] == 1.0 and P["e_ground"] == 1.0)
     px = P["m_box"] * traj.qd[:, 0] + P["m_jack"] * traj.qd[:, 3]
     scale = (P["m_box"] * np.abs(traj.qd[:, 0]) + P["m_jack"] * np.abs(traj.qd[:, 3])).max()
-    assert np.abs(px - px[0]).max() <= 1e-13 * scale
+    assert np.abs(px - px[0]).max() <= 1e-13 * scale     # (see PX_ROUND_OFF)
 
 
 @pytest.mark.slow
@@ -345,9 +504,10 @@ def test_random_weightless_scenes_keep_momentum(shape, structure, data):
     Impulses and contact forces act on both bodies at one point, equal and
     opposite. Linear momentum is a linear invariant, which RK4 keeps exactly:
     only round-off remains, relative to the momentum exchanged (1e-13 of it).
-    Angular momentum is quadratic: kept to round-off (1e-12 of its scale) in
-    free flight and by impulses, and to RK4's error, O((omega dt)^5) per step,
-    while a contact is persistent (a constrained, curved motion).
+    Angular momentum is quadratic: kept to round-off (ANGULAR of its scale) in
+    free flight and by impulses, and to RK4's error, (omega dt)^5 per step but
+    no more than ANGULAR_REST_CAP, while a contact is persistent (a constrained,
+    curved motion).
     """
     scene_base = base(structure)
     over, dt = data.draw(free_scene(scene_base, shape, 0.0, False))
@@ -361,10 +521,10 @@ def test_random_weightless_scenes_keep_momentum(shape, structure, data):
     # a persistent contact (a force all along) can exchange far more momentum than there is
     exchanged = lin_scale + np.abs(np.diff(P["m_jack"] * traj.qd[:, 3:5], axis=0)).sum()
     assert np.abs(linear - linear[0]).max() <= 1e-13 * exchanged
-    omega = np.abs(traj.qd[:, [2, 5]]).max() + np.abs(traj.qd[:, [0, 1, 3, 4]]).max() / P["L"]
-    allowed = 1e-12 + np.count_nonzero(resting_steps(traj)) * (omega * dt) ** 5
+    n_rest = np.count_nonzero(resting_steps(traj))
+    allowed = ANGULAR + n_rest * min(omega_dt(traj, P) ** 5, ANGULAR_REST_CAP)
     drift = np.abs(angular - angular[0]).max() / ang_scale
-    assert drift <= allowed, (drift, allowed)
+    assert drift <= allowed, (drift, allowed, n_rest, omega_dt(traj, P))
 
 
 @pytest.mark.slow
@@ -376,7 +536,7 @@ def test_random_prescribed_box_never_penetrates(data):
     Shaking up to amp (2 pi freq)^2 = 18 g. e >= 0.05: with e = 0 a jack that
     lands on the moving floor chatters for seconds (half the draws; see
     test_plastic_hexagon_on_a_tilting_floor_settles_quickly), which this test
-    would only reject, at 1 s each.
+    would only reject, at EVENT_BUDGET events each.
     """
     scene_base = base("hand")
     speed = data.draw(log_uniform(0.1, 10.0)) * math.sqrt(9.81)
@@ -417,7 +577,8 @@ def test_long_elastic_run_keeps_energy_over_200000_impacts():
     Allowed: 20 eps sqrt(K) (2.3e-12 at K = 2.7e5); a bias of 1e-17 per impact
     would exceed it. (Measured: 5e-13, about 2e-18 per impact, and it grows
     about linearly with K here: a bias of ~eps/100 per impact.) Total momentum
-    is zero, so the bodies stay near the origin. Beyond ~1e6 impacts the run
+    is zero, so the bodies stay near the origin, and it stays zero to 1e-13 of
+    its scale (measured 1.9e-14 over the 2.7e5 impulses; was 1e-12). Beyond ~1e6 impacts the run
     stalls: the event time's resolution, 4 eps t, times the approach speed
     exceeds the 1e-9 L contact band (reported; not tested here, it takes 10 s).
     """
@@ -437,7 +598,7 @@ def test_long_elastic_run_keeps_energy_over_200000_impacts():
     assert np.abs(rel).max() <= 20 * EPS * math.sqrt(K)
     check_gaps(traj, scene)
     linear, _, lin_scale, _ = momenta(traj, scene.params())
-    assert np.abs(linear).max() <= 1e-12 * lin_scale
+    assert np.abs(linear).max() <= 1e-13 * lin_scale
 
 
 @pytest.mark.parametrize("ratio", [1e-3, 1.0, 1e3])
@@ -449,8 +610,10 @@ def test_extreme_mass_ratios_give_the_one_dimensional_elastic_collision(ratio):
     ((m - M) v, 2 m v) / (m + M), with relative speed v: hits every 2 (L - a) / v.
     Every hit is located where the gap is -0.5e-12 L (by design), so each
     crossing is 1e-12 L longer than 2 (L - a). A mass ratio of 1e3 makes the
-    LCP matrix entries differ by 1e3; round-off stays at eps of v and of t
-    (1e-12 allowed after 36 hits).
+    LCP matrix entries differ by 1e3; round-off stays at eps of v and of t:
+    hit times 1e-12 s allowed after 36 hits (measured 2.5e-13); velocities
+    along x 1e-14 v (measured 1.8e-15 v), spurious y and spin velocities
+    1e-13 v (measured 1.4e-14 v, at m/M = 1e3). (Velocities were 1e-12 v.)
     """
     v, m, M = 10.0, ratio, 1.0
     scene = float_scene(**{"box.mass": M, "jack.mass": m, "restitution": 1.0,
@@ -470,16 +633,17 @@ def test_extreme_mass_ratios_give_the_one_dimensional_elastic_collision(ratio):
     odd = n_before % 2 == 1
     jack = np.where(odd, (m - M) / (m + M) * v, v)
     box = np.where(odd, 2 * m / (m + M) * v, 0.0)
-    np.testing.assert_allclose(traj.qd[:, 3], jack, rtol=0, atol=1e-12 * v)
-    np.testing.assert_allclose(traj.qd[:, 0], box, rtol=0, atol=1e-12 * v)
-    assert np.abs(traj.qd[:, [1, 4]]).max() <= 1e-12 * v
-    assert np.abs(traj.qd[:, [2, 5]]).max() <= 1e-12 * v / L_F
+    np.testing.assert_allclose(traj.qd[:, 3], jack, rtol=0, atol=1e-14 * v)
+    np.testing.assert_allclose(traj.qd[:, 0], box, rtol=0, atol=1e-14 * v)
+    assert np.abs(traj.qd[:, [1, 4]]).max() <= 1e-13 * v
+    assert np.abs(traj.qd[:, [2, 5]]).max() <= 1e-13 * v / L_F
     check_gaps(traj, scene)
     check_energy(traj, scene, elastic=True)
 
 
-#: a square plate of half-size 0.98 L turns only |phi| < 0.0203 rad (a (|cos| + |sin|) <= L)
-WEDGED_SQUARE = ("float", 0.98, 0.004, (-0.0203, 0.0203))
+#: a square plate of half-size 0.98 L turns only |phi| <= 0.02026 rad (a (|cos| + |sin|) <= L)
+_SQUARE_TURN = math.asin(1 / (0.98 * math.sqrt(2.0))) - math.pi / 4
+WEDGED_SQUARE = ("float", 0.98, 0.004, (-_SQUARE_TURN, _SQUARE_TURN))
 #: a cross of half-size 1.38 L is caught near 45 degrees: acos(1/1.38) <= phi <= asin(1/1.38)
 WEDGED_CROSS = ("cross", 1.38, math.pi / 4, (math.acos(1 / 1.38), math.asin(1 / 1.38)))
 STALL_IN_CORNER = (
@@ -500,8 +664,10 @@ def test_jack_nearly_as_large_as_the_box_rattles_without_escaping_its_wedge(wedg
 
     Gaps at the samples cannot see a jack that passes through a wall between
     two samples; its angle can: it must stay in the only angles where it fits.
-    The bound is the geometric one plus 1e-9 rad (gaps of 1e-9 L allowed).
-    Energy and momentum as everywhere (no outside force; kept if e = 1).
+    The bound is the exact geometric one plus 1e-9 rad (the jacks here stay
+    4e-4 rad or more inside it). Energy and momentum as everywhere (no outside
+    force; kept if e = 1): linear momentum to 5e-15 of its scale (measured
+    8.9e-16 over ~1000 impacts; was 1e-13).
     """
     structure, a, phi0, wedge = wedged
     scene = jackbox.load_scene(base(structure), {
@@ -514,7 +680,7 @@ def test_jack_nearly_as_large_as_the_box_rattles_without_escaping_its_wedge(wedg
     check_gaps(traj, scene)
     check_energy(traj, scene, elastic=e == 1.0)
     linear, _, lin_scale, _ = momenta(traj, scene.params())
-    assert np.abs(linear - linear[0]).max() <= 1e-13 * lin_scale
+    assert np.abs(linear - linear[0]).max() <= 5e-15 * lin_scale
 
 
 def grazing_run(dt, depth):
@@ -543,13 +709,14 @@ def test_grazing_corner_is_hit_when_it_would_reach_into_the_wall(dt):
 
     Depth 1e-8 L (ten times the gap tolerance): one impulse, where
     gap = -0.5e-12 L, i.e. at t* - acos(1 - (depth - 0.5e-12) L / r) / omega
-    (RK4 turns at a constant rate exactly; 1e-10 s allows for the root's
-    round-off, 1e3 s per m of gap there). Clearance 1e-8 L: no impulse.
+    (RK4 turns at a constant rate exactly). The gap moves at 9e-4 L/s there, so
+    its round-off, a few eps of L, is ~1e-13 s (measured 1.4e-13 s): 1e-12 s
+    allowed (was 1e-10). Clearance 1e-8 L: no impulse.
     """
     traj, r, omega, t_star = grazing_run(dt, 1e-8)
     assert list(traj.impacts["name"]) == ["right:0"]
     t_hit = t_star - math.acos(1 - (1e-8 - 0.5e-12) * L_F / r) / omega
-    assert traj.impact_t[0] == pytest.approx(t_hit, abs=1e-10)
+    assert traj.impact_t[0] == pytest.approx(t_hit, abs=1e-12)
     check_gaps(traj, float_scene(**{"box.mass": 1e6}))
     miss, *_ = grazing_run(dt, -1e-8)
     assert len(miss.impact_t) == 0
@@ -563,6 +730,8 @@ def test_corner_hit_on_a_free_box_is_one_simultaneous_impact(e):
     diagonal through both centres: no spin for either body, and the diagonal
     velocities follow the 1D law with restitution e between m = 1 and M = 3.
     Solved one after the other, the first wall would set the jack spinning.
+    Velocities to 1e-15 v, a few roundings of one LCP solve (measured: exact,
+    0; was 1e-13 v).
     """
     v, m, M = 2.0, 1.0, 3.0
     scene = float_scene(**{"restitution": e, "initial.q": [0, 0, 0, 0, 0, 0], "initial.qd": [0, 0, 0, v, v, 0]})
@@ -573,9 +742,9 @@ def test_corner_hit_on_a_free_box_is_one_simultaneous_impact(e):
     after = traj.t > first["t"].max()      # located where the gap is -0.5e-12 L: just after t_hit
     jack = v * (m - e * M) / (m + M)
     box = v * m * (1 + e) / (m + M)
-    np.testing.assert_allclose(traj.qd[after][:, [3, 4]], jack, rtol=0, atol=1e-13 * v)
-    np.testing.assert_allclose(traj.qd[after][:, [0, 1]], box, rtol=0, atol=1e-13 * v)
-    assert np.abs(traj.qd[:, [2, 5]]).max() <= 1e-13 * v
+    np.testing.assert_allclose(traj.qd[after][:, [3, 4]], jack, rtol=0, atol=1e-15 * v)
+    np.testing.assert_allclose(traj.qd[after][:, [0, 1]], box, rtol=0, atol=1e-15 * v)
+    assert np.abs(traj.qd[:, [2, 5]]).max() <= 1e-15 * v
     check_gaps(traj, scene)
     check_energy(traj, scene, elastic=e == 1.0)
 
@@ -604,8 +773,9 @@ def test_very_fast_jack_with_a_coarse_step_hits_at_the_analytic_times():
 def test_very_fast_spinning_jack_with_a_coarse_step_keeps_the_invariants():
     """1e4 L/s and 3e4 rad/s with dt = 0.01 s (300 rad per step): thousands of located impacts.
 
-    The invariants of every run: gaps, energy (elastic), momentum (1e-13 of
-    the momentum exchanged; hits here exchange 1e2 times the momentum).
+    The invariants of every run: gaps, energy (elastic), momentum (1e-15 of
+    the momentum exchanged, measured 1.2e-16; hits here exchange 1e2 times the
+    momentum; was 1e-13).
     """
     scene = float_scene(**{"restitution": 1.0, "initial.q": [0, 0, 0.1, 0.2, -0.1, 0.5],
                            "initial.qd": [0, 0, 0, 1e4, 7e3, 3e4]})
@@ -616,24 +786,26 @@ def test_very_fast_spinning_jack_with_a_coarse_step_keeps_the_invariants():
     P = scene.params()
     linear, _, lin_scale, _ = momenta(traj, P)
     exchanged = lin_scale + np.abs(np.diff(P["m_jack"] * traj.qd[:, 3:5], axis=0)).sum()
-    assert np.abs(linear - linear[0]).max() <= 1e-13 * exchanged
+    assert np.abs(linear - linear[0]).max() <= 1e-15 * exchanged
 
 
 def test_elastic_drop_keeps_its_energy_for_ten_seconds():
     """e = 1 on walls and ground, gravity: energy kept to round-off through 100+ impacts.
 
-    Flights are parabolas (RK4 exact), impulses elastic: 1e-12 of the energy's
-    scale at every step, and at the end. Horizontal momentum kept (the ground
-    pushes vertically).
+    Flights are parabolas (RK4 exact), impulses elastic: round-off at every
+    step, and at the end the random walk of K impulses, ROUND_OFF sqrt(1 + K)
+    (4e-14; measured 7.5e-15, was 1e-12). Horizontal momentum kept (the ground
+    pushes vertically) to PX_ROUND_OFF.
     """
     scene = jackbox.load_scene("drop", {"restitution": 1.0, "ground_restitution": 1.0})
     traj = jackbox.simulate(scene, t_end=10.0, dt=1e-3)
     assert len(traj.impact_t) > 100
     check_energy(traj, scene, elastic=True)
     P = scene.params()
-    assert abs(traj.energy[-1] - traj.energy[0]) <= ROUND_OFF * energy_scale(traj, P)
+    K = len(traj.impact_t)
+    assert abs(traj.energy[-1] - traj.energy[0]) <= ROUND_OFF * math.sqrt(1 + K) * energy_scale(traj, P)
     px = P["m_box"] * traj.qd[:, 0] + P["m_jack"] * traj.qd[:, 3]
-    assert np.abs(px - px[0]).max() <= 1e-13 * np.abs(px).max()
+    assert np.abs(px - px[0]).max() <= PX_ROUND_OFF * np.abs(px).max()
     check_gaps(traj, scene)
 
 
@@ -645,7 +817,10 @@ def test_plastic_drop_comes_to_rest_flat_on_the_ground():
     height L + w and angle 0 mod pi/2, jack a above the floor and angle 0 mod
     pi/2, no vertical or angular speed, two ground contacts persistent.
     Horizontally nothing stops the pair (the ground is frictionless): the
-    horizontal momentum is what it was at the start.
+    horizontal momentum is what it was at the start (to PX_ROUND_OFF).
+    Positions and angles to 1e-15 (L = 1: a few eps; measured 2.2e-16),
+    speeds to 1e-17 m/s (measured 1.4e-18: the projection leaves the
+    round-off of speeds already below the 3e-7 m/s rest threshold); all were 1e-12.
     """
     scene = jackbox.load_scene("drop", {"restitution": 0.0, "ground_restitution": 0.0})
     traj = jackbox.simulate(scene, t_end=10.0, dt=1e-3)
@@ -655,14 +830,14 @@ def test_plastic_drop_comes_to_rest_flat_on_the_ground():
     L, w, a = P["L"], P["w_box"], P["a_jack"]
     q, qd = traj.q[-1], traj.qd[-1]
     quarter = lambda angle: abs((angle + math.pi / 4) % (math.pi / 2) - math.pi / 4)  # noqa: E731
-    assert q[1] == pytest.approx(L + w, abs=1e-12) and quarter(q[2]) < 1e-12
-    assert q[4] - q[1] == pytest.approx(a - L, abs=1e-12) and quarter(q[5] - q[2]) < 1e-12
-    assert np.abs(qd[[1, 2, 4, 5]]).max() < 1e-12
+    assert q[1] == pytest.approx(L + w, abs=1e-15) and quarter(q[2]) < 1e-15
+    assert q[4] - q[1] == pytest.approx(a - L, abs=1e-15) and quarter(q[5] - q[2]) < 1e-15
+    assert np.abs(qd[[1, 2, 4, 5]]).max() < 1e-17
     changes = traj.contact_changes
     resting = {n for n in changes["name"] if (changes["name"] == n).sum() % 2 == 1}
     assert len({n for n in resting if n.startswith("ground")}) == 2, changes
     px = P["m_box"] * traj.qd[:, 0] + P["m_jack"] * traj.qd[:, 3]
-    assert np.abs(px - px[0]).max() <= 1e-13 * np.abs(px).max()
+    assert np.abs(px - px[0]).max() <= PX_ROUND_OFF * np.abs(px).max()
 
 
 # --- known failures (reported; strict: they fail until fixed) ---------------------------
@@ -712,12 +887,12 @@ def test_plastic_hexagon_on_a_tilting_floor_settles_quickly():
     """The hand-shaken box (slow vertical shake), hexagon jack thrown in with e = 0.
 
     Expected: it lands, comes to rest on an edge and rides the floor: a few
-    hundred events at most, and the run takes well under the 3 s allowed.
+    hundred events at most (the run is stopped, OverBudget, after 10000).
     """
     scene = jackbox.load_scene(base("hand"), {
         "amp": 0.17, "freq": 0.23, "jack.mass": 0.65, "restitution": 0.0,
         "initial.q": [0.0, 0.0, 0.0, -0.36, 0.0, 0.0], "initial.qd": [0, 0, 0, -2.85, 2.32, 0.06]})
-    traj = simulate(scene, seconds=3.0, reject_stall=False, t_end=0.95, dt=1e-3)
+    traj = simulate(scene, budget=10_000, reject_stall=False, t_end=0.95, dt=1e-3)
     assert len(traj.impact_t) + len(traj.contact_t) < 1000
 
 
