@@ -10,6 +10,7 @@ impact log grows when it fills) and wraps the arrays in a
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import dataclass
 
@@ -20,7 +21,7 @@ from . import __version__, loader
 from . import kernel as K
 from .errors import NonFiniteStateError, SimulationError
 from .progress import progress_bar
-from .scene import Scene, load_scene
+from .scene import Scene, load_scene, param_array
 from .trajectory import Trajectory
 
 CHUNK = 1 << 15          #: steps per kernel call (progress granularity)
@@ -30,6 +31,10 @@ LOG_SIZE = 1024          #: first size of the event log (it doubles when full)
 METHODS = ("exact", "naive")
 #: tolerances of the exact method, relative to the scene's size and speed (see tolerances())
 GAP_TOL, EVENT_TOL, REST_TOL = 1e-9, 1e-12, 1e-7
+#: the most steps one run may take: step indices stay exact in float64 (2^53) far below it
+MAX_STEPS = 1e15
+#: bytes a recorded sample holds: t, q (6), qd (6), energy
+RECORD_BYTES = 14 * 8
 
 
 @dataclass
@@ -50,8 +55,12 @@ class Run:
         return self.n_steps // self.record_every + 1 + (self.n_steps % self.record_every != 0)
 
 
-def prepare(scene, t_end=None, dt=None, record_every=1, params=None, method="exact") -> Run:
-    """Check the arguments of a run and resolve defaults from the scene."""
+def prepare(scene, t_end=None, dt=None, record_every=1, params=None, method="exact",
+            where: str = "simulate(params=...)") -> Run:
+    """Check the arguments of a run and resolve defaults from the scene.
+
+    where: how `params` were given, named in a refusal.
+    """
     scene = load_scene(scene)
     t_end = scene.t_end if t_end is None else float(t_end)
     dt = scene.dt if dt is None else float(dt)
@@ -63,20 +72,48 @@ def prepare(scene, t_end=None, dt=None, record_every=1, params=None, method="exa
         raise SimulationError(f"record_every must be a positive integer, got {record_every!r}")
     if method not in METHODS:
         raise SimulationError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-    p = scene.param_values.copy()
-    for name, value in (params or {}).items():
+    for name in params or {}:
         if name not in scene.param_names:
             raise SimulationError(f"unknown parameter {name!r} (parameters: {', '.join(scene.param_names)})")
-        p[scene.param_names.index(name)] = float(value)
-    if not np.all(np.isfinite(p)):
-        raise SimulationError("parameters must be finite")
+    # the scene format's rules (e in [0, 1], masses > 0, a start outside the walls ...)
+    p = param_array(scene, dict(params or {}), where)
     # The last step ends at t_end (or just past it when dt does not divide it).
+    if t_end / dt > MAX_STEPS:
+        raise SimulationError(f"t_end / dt = {t_end / dt:.3g} steps (dt = {dt:g} s) is more than a run "
+                              f"can take ({MAX_STEPS:.0e}): raise dt or shorten t_end")
     n_steps = max(1, math.ceil(t_end / dt - 1e-9))
+    record_every = min(int(record_every), n_steps)    # keeps the first and last state either way
     first = 3 if scene.prescribed else 0
     q, qd = scene.q0[first:].copy(), scene.qd0[first:].copy()
     if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
         raise SimulationError("the start state is not finite")
-    return Run(scene, p, q, qd, dt, n_steps, int(record_every), method)
+    run = Run(scene, p, q, qd, dt, n_steps, record_every, method)
+    check_memory(run.n_samples * RECORD_BYTES, f"recording {run.n_samples:,} samples",
+                 "record fewer (record_every, --record-every) or raise dt")
+    return run
+
+
+def available_memory() -> int | None:
+    """Bytes of memory the system can still give (Linux' MemAvailable), or None if unknown."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_memory(nbytes: int, what: str, remedy: str) -> None:
+    """Refuse, before allocating, work that will not fit in the memory available now."""
+    free = available_memory()
+    if free is not None and nbytes > free:
+        raise SimulationError(f"{what} needs {nbytes / 2**30:.3g} GiB, more than the "
+                              f"{free / 2**30:.3g} GiB available: {remedy}")
 
 
 def tolerances(run: Run, kernel) -> np.ndarray:

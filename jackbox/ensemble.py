@@ -38,7 +38,7 @@ from . import kernel as K
 from .errors import SimulationError
 from .fileio import write_atomic
 from .progress import progress_bar
-from .scene import COORDS, RATES, Scene, load_scene
+from .scene import COORDS, RATES, Scene, check_param, load_scene
 
 #: members per kernel call when the progress bar is on (each call is parallel inside)
 CHUNK_MEMBERS = 1024
@@ -82,7 +82,7 @@ def plan(scene, n: int, perturb: dict[str, float] | None = None, params: dict[st
         raise SimulationError(f"n must be a positive integer, got {n!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SimulationError(f"seed must be a non-negative integer, got {seed!r}")
-    run = api.prepare(scene, t_end, dt, params=params)
+    run = api.prepare(scene, t_end, dt, params=params, where="params")
     names = [*COORDS, *RATES]
     movable = scene.dof_names + tuple(f"{c}_dot" for c in scene.dof_names)
     pert = []
@@ -91,22 +91,21 @@ def plan(scene, n: int, perturb: dict[str, float] | None = None, params: dict[st
             raise SimulationError(f"perturb: unknown coordinate {name!r} (one of {', '.join(names)})")
         if name not in movable:
             raise SimulationError(f"perturb: {name!r} is not a degree of freedom: the box's motion is prescribed")
-        if not (math.isfinite(scale) and scale >= 0):
-            raise SimulationError(f"perturb: the size for {name!r} must be a finite number >= 0, got {scale}")
+        if not (_is_number(scale) and math.isfinite(scale) and scale >= 0):
+            raise SimulationError(f"perturb: the size for {name!r} must be a finite number >= 0, got {scale!r}")
         pert.append((name, float(scale)))
     if grid and pert and _side(n, len(pert)) is None:
         raise SimulationError(f"a grid over {len(pert)} coordinates needs n = m^{len(pert)} members, got n = {n}")
     sw = []
     for name, rng in (sweep or {}).items():
-        _param_slots(scene, name)      # refuses an unknown name
+        slots = _param_slots(scene, name)      # refuses an unknown name
         try:
-            lo, hi = (float(v) for v in rng)
+            lo, hi = rng
         except (TypeError, ValueError):
             raise SimulationError(f"sweep: {name} needs (first, last), got {rng!r}") from None
-        if not (math.isfinite(lo) and math.isfinite(hi)):
-            raise SimulationError(f"sweep: {name} bounds must be finite")
-        if name in ("e", "e_ground", "restitution") and not (0 <= min(lo, hi) and max(lo, hi) <= 1):
-            raise SimulationError(f"sweep: restitution must lie in [0, 1], got {lo}..{hi}")
+        # both ends by the scene format's rules (every rule is a range: the members between pass too)
+        for slot in slots:
+            lo, hi = (check_param(scene.param_names[slot], v, f"sweep {name}") for v in (lo, hi))
         sw.append((name, lo, hi))
     if len(sw) > 2:
         raise SimulationError("sweep: at most two parameters (a line or a grid)")
@@ -334,8 +333,11 @@ def chaos(scene, n: int, d0: float = 1e-8, renorm: float | None = None, perturb=
     shows as a jump of the separation; a small d0 keeps that window short.
     """
     spec = plan(scene, n, perturb, params, sweep, t_end, dt, seed, grid, None)
-    if not (math.isfinite(d0) and 0 < d0 < 1e-2):
-        raise SimulationError(f"d0 must be a small positive number (below 1e-2), got {d0}")
+    if not (_is_number(d0) and math.isfinite(d0) and 0 < d0 < 1e-2):
+        raise SimulationError(f"d0 must be a small positive number (below 1e-2), got {d0!r}")
+    if renorm is not None and not (_is_number(renorm) and math.isfinite(renorm)):
+        raise SimulationError(f"renorm must be a time between dt ({spec.dt:g} s) and t_end "
+                              f"({spec.t_end:g} s), got {renorm!r}")
     renorm_steps = 100 if renorm is None else round(float(renorm) / spec.dt)
     if not 1 <= renorm_steps <= spec.n_steps:
         raise SimulationError(f"renorm must be between dt ({spec.dt:g} s) and t_end ({spec.t_end:g} s), got {renorm}")
@@ -466,6 +468,10 @@ def _param_slots(scene: Scene, name: str) -> list[int]:
         raise SimulationError(f"sweep: unknown parameter {name!r} (parameters: restitution, "
                               f"{', '.join(scene.param_names)})")
     return [scene.param_names.index(name)]
+
+
+def _is_number(x) -> bool:
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool)
 
 
 def _side(n: int, k: int) -> int | None:

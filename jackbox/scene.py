@@ -268,12 +268,11 @@ class _Checker:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             self.fail(name, f"must be a number, got {_kind(value)}")
         value = float(value)
-        if not math.isfinite(value):
-            self.fail(name, f"must be finite, got {value}")
-        if positive and value <= 0:
-            self.fail(name, f"must be > 0, got {value:g}")
-        if low is not None and not low <= value <= high:
-            self.fail(name, f"must be in [{low:g}, {high:g}], got {value:g}")
+        problem = (_range_problem(value, 0.0, math.inf, True) if positive else
+                   _range_problem(value, -math.inf if low is None else low,
+                                  math.inf if high is None else high, False))
+        if problem:
+            self.fail(name, problem)
         return value
 
     def string(self, section: str, key: str, choices=None) -> str:
@@ -531,6 +530,94 @@ def contact_gaps(q: np.ndarray, points: np.ndarray, L: float, w: float, ground: 
         h = L + w
         rows.append(np.array([yb + sb * sx * h + cb * sy * h for sx, sy in CORNER_SIGNS]))
     return np.concatenate(rows)
+
+
+#: The scene format's rule for each built-in parameter slot (docs/scenes.md): the key
+#: its value comes from in a scene file and its range, (low, high, low_open). The same
+#: rules hold however a value arrives: the file, --set, simulate(params=...), a sweep.
+SLOT_RULES: dict[str, tuple[str, float, float, bool]] = {
+    "m_box": ("box.mass", 0.0, math.inf, True),
+    "J_box": ("box.inertia", 0.0, math.inf, True),
+    "L": ("box.inner_half_width", 0.0, math.inf, True),
+    "w_box": ("box.wall_thickness", 0.0, math.inf, True),
+    "m_jack": ("jack.mass", 0.0, math.inf, True),
+    "J_jack": ("jack.inertia", 0.0, math.inf, True),
+    "a_jack": ("jack.half_size", 0.0, math.inf, True),
+    "g": ("world.gravity", 0.0, math.inf, False),
+    "e": ("impact.restitution", 0.0, 1.0, False),
+    "e_ground": ("impact.ground_restitution", 0.0, 1.0, False),
+}
+
+
+def check_param(name: str, value: Any, where: str) -> float:
+    """`value` for the parameter slot `name` as a float, or a SceneError naming `where`.
+
+    where: how the value was given (``"simulate(params=...)"``, ``"sweep"``, ...).
+    Built-in slots keep their scene-file ranges; ``[params]`` and a polygon's
+    vertex slots take any finite number.
+    """
+    key, low, high, low_open = SLOT_RULES.get(name, (f"params.{name}", -math.inf, math.inf, False))
+    what = f"{name} ({key})" if name in SLOT_RULES else name
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise SceneError(where, what, f"must be a number, got {_kind(value)}")
+    x = float(value)
+    problem = _range_problem(x, low, high, low_open)
+    if problem:
+        raise SceneError(where, what, problem)
+    return x
+
+
+def _range_problem(x: float, low: float, high: float, low_open: bool) -> str | None:
+    """What is wrong with the number x for the range (low, high] or [low, high], if anything."""
+    if not math.isfinite(x):
+        return f"must be finite, got {x}"
+    if low_open and not x > low:
+        return f"must be > {low:g}, got {x:g}"
+    if not low <= x <= high:
+        allowed = f">= {low:g}" if high == math.inf else f"in [{low:g}, {high:g}]"
+        return f"must be {allowed}, got {x:g}"
+    return None
+
+
+def param_array(scene: "Scene", values: dict[str, Any], where: str) -> np.ndarray:
+    """The scene's parameter array with `values` set, each checked as a scene file's would be.
+
+    With new sizes (L, w_box, a_jack or a polygon's vertices) or new values of a
+    prescribed box's motion, the start state is checked again: a start that the
+    new values put inside a wall is refused, naming `where`.
+    """
+    p = scene.param_values.copy()
+    for name, value in values.items():
+        if name not in scene.param_names:
+            raise SceneError(where, name, f"unknown parameter (parameters: {', '.join(scene.param_names)})")
+        p[scene.param_names.index(name)] = check_param(name, value, where)
+    if not np.array_equal(p, scene.param_values):
+        check_start(scene, p, where)
+    return p
+
+
+def check_start(scene: "Scene", p: np.ndarray, where: str) -> None:
+    """Refuse a start state that penetrates with the parameter values `p`."""
+    P = dict(zip(scene.param_names, p))
+    if "a_jack" in P:
+        base = scene.param_values[scene.param_names.index("a_jack")]
+        points = scene.points * (P["a_jack"] / base)
+    else:
+        points = np.array([[P[f"jack_x{i}"], P[f"jack_y{i}"]] for i in range(len(scene.points))])
+    q0 = scene.q0.copy()
+    if scene.prescribed:
+        constants = set(BASE_SYMBOLS) | set(scene.user_params) | {"t"}
+        values = P | {"t": 0.0}
+        for i, formula in enumerate(scene.motion):
+            try:
+                q0[i] = _expr.parse(formula, constants).evaluate(values)
+            except _expr.ExprError as exc:
+                raise SceneError(where, f"box.{BOX_COORDS[i][:-4]}", f"{exc} at t = 0") from None
+    gaps = contact_gaps(q0, points, P["L"], P["w_box"], scene.has_ground_contacts)
+    worst = int(np.argmin(gaps))
+    if gaps[worst] < -1e-9 * P["L"]:
+        raise SceneError(where, "initial.q", f"the start state penetrates with these values: contact "
+                         f"{scene.constraint_names[worst]!r} has gap {gaps[worst]:.6g} < 0")
 
 
 def _check_start(c: _Checker, q0, points, L, w, ground) -> None:
