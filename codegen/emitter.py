@@ -30,7 +30,7 @@ import sympy as sp
 
 from .model import CodegenError, Model
 from .printer import KernelPrinter
-from .version import GENERATOR, model_hash
+from .version import GENERATOR, model_hash, seal
 
 #: Inputs a function can take, in signature order.
 _ARG_ORDER = ("t", "q", "qd", "p")
@@ -166,7 +166,7 @@ def emit_module(model: Model, command: str) -> str:
         f"FUNCTIONS = {tuple(fn.name for fn in fs) + ('accel_time_s',) + TUPLE_HELPERS!r}",
     ]
     bodies += _tuple_helpers(len(model.q))
-    return "\n".join(header) + "\n" + "".join("\n\n" + body for body in bodies)
+    return seal("\n".join(header) + "\n" + "".join("\n\n" + body for body in bodies))
 
 
 #: Tuple arithmetic of length N_DOF emitted with every model (no sympy involved).

@@ -34,3 +34,19 @@ def model_hash(structure: dict) -> str:
     """16 hex digits identifying a model: its structure plus the generator id."""
     text = json.dumps({"generator": GENERATOR, "structure": structure}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+#: The last line of every generated module: a digest of the text above it, so a
+#: truncated or damaged module is told from a whole one without importing it.
+SEAL = "# sha256 of the text above: "
+
+
+def seal(text: str) -> str:
+    """`text` with its seal line appended."""
+    return f"{text}\n{SEAL}{hashlib.sha256(text.encode()).hexdigest()}\n"
+
+
+def is_sealed(text: str) -> bool:
+    """Whether `text` ends with the seal of the text above it (whole and unchanged)."""
+    body, _, last = text.removesuffix("\n").rpartition("\n")
+    return last == f"{SEAL}{hashlib.sha256(body.encode()).hexdigest()}"

@@ -14,10 +14,11 @@ import argparse
 import math
 import sys
 import time
+import warnings
 from pathlib import Path
 
 from . import __version__
-from .errors import JackboxError, NonFiniteStateError
+from .errors import CacheWarning, JackboxError, NonFiniteStateError
 
 EPILOG = """\
 examples:
@@ -33,6 +34,7 @@ examples:
   jackbox bench                        step throughput, skip gains, C ceiling, ensemble scaling
   jackbox build                        regenerate generated/ for the built-in scenes
   jackbox scenes                       list the built-in scenes
+  jackbox cache                        where compiled code is cached, its size; jackbox cache clear
 """
 
 
@@ -50,7 +52,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 0
     try:
-        return args.func(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning
+            return args.func(args)
     except JackboxError as exc:
         print(f"jackbox: error: {exc}", file=sys.stderr)
         return 1 if isinstance(exc, NonFiniteStateError) else 2
@@ -61,6 +65,14 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("jackbox: interrupted", file=sys.stderr)
         return 130
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """jackbox's own warnings as one ``jackbox: warning: ...`` line; others as Python prints them."""
+    if issubclass(category, CacheWarning):
+        print(f"jackbox: warning: {message}", file=sys.stderr)
+    else:
+        print(warnings.formatwarning(message, category, filename, lineno, line), end="", file=sys.stderr)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -195,6 +207,16 @@ def _parser() -> argparse.ArgumentParser:
     scenes = sub.add_parser("scenes", help="list the built-in scenes",
                             description="List the built-in scenes with their descriptions.")
     scenes.set_defaults(func=cmd_scenes)
+
+    cache = sub.add_parser(
+        "cache", help="show where compiled code is cached and its size, or clear it",
+        description="Generated models and compiled kernels are cached in $JACKBOX_CACHE_DIR, else "
+                    "$XDG_CACHE_HOME/jackbox, else ~/.cache/jackbox. A damaged entry is found (by "
+                    "checksum, or when it fails to load), removed and rebuilt with one warning; an "
+                    "unwritable folder is avoided (compiled code is then kept for the process only).")
+    cache.add_argument("action", nargs="?", choices=("info", "clear"), default="info",
+                       help="info (default): the folder, its files and size; clear: empty it")
+    cache.set_defaults(func=cmd_cache)
     return parser
 
 
@@ -511,6 +533,28 @@ def cmd_build(args) -> int:
         print(f"{'wrote    ' if result.changed else 'unchanged'}  {target}  "
               f"(derive {result.seconds['derive']:.2f} s, cse + emit {result.seconds['cse_emit']:.2f} s)")
     return 1 if stale else 0
+
+
+def cmd_cache(args) -> int:
+    import shutil
+
+    from .loader import configured_cache_dir
+
+    folder = configured_cache_dir()
+    files = [f for f in folder.rglob("*") if f.is_file()] if folder.is_dir() else []
+    size = sum(f.stat().st_size for f in files)
+    if args.action == "clear":
+        for part in ("models", "kernels"):      # only what jackbox writes there
+            if (folder / part).is_dir():
+                shutil.rmtree(folder / part)
+        print(f"cleared    {folder} ({len(files)} files, {size / 2**20:.1f} MiB)")
+        return 0
+    models = len(list(folder.glob("models/*.py")))
+    kernels = len(list(folder.glob("kernels/*.py")))
+    print(f"cache      {folder}{'' if folder.is_dir() else ' (not created yet)'}")
+    print(f"holds      {models} generated models, {kernels} kernel modules, {len(files)} files, "
+          f"{size / 2**20:.1f} MiB")
+    return 0
 
 
 def cmd_scenes(args) -> int:

@@ -20,3 +20,7 @@ class SimulationError(JackboxError):
 
 class NonFiniteStateError(SimulationError):
     """The state became NaN or infinite during a run (CLI exit status 1)."""
+
+
+class CacheWarning(UserWarning):
+    """The cache needed mending (a damaged entry rebuilt, an unwritable folder avoided)."""

@@ -23,17 +23,21 @@ from __future__ import annotations
 import ast
 import hashlib
 import importlib.util
+import json
 import os
 import sys
+import tempfile
 import time
+import warnings
 from pathlib import Path
 from types import ModuleType
 
 import numba
 import numpy as np
 
-from codegen.version import model_hash
+from codegen.version import is_sealed, model_hash
 
+from .errors import CacheWarning
 from .fileio import write_atomic
 from .scene import Scene
 
@@ -45,15 +49,51 @@ OPTIONAL = {
     "box_motion": "def box_motion(t, p, out):\n    pass\n",
 }
 _loaded: dict[str, ModuleType] = {}
+#: (path, inode, mtime, size) -> whether the generated module there is sealed (see intact())
+_intact: dict[tuple, bool] = {}
+#: kernel modules whose Numba cache files were checked against their manifest in this process
+_verified: set[str] = set()
+#: cache folders found unwritable in this process -> the temporary folder used instead
+_fallback: dict[str, Path] = {}
 #: (cache folder, model file, its and the kernel's inode, mtime and size) -> module
 _stamped: dict[tuple, ModuleType] = {}
 
 
-def cache_dir() -> Path:
+def configured_cache_dir() -> Path:
+    """The cache folder the environment names (it may not exist, or not be writable)."""
     if os.environ.get("JACKBOX_CACHE_DIR"):
         return Path(os.environ["JACKBOX_CACHE_DIR"]).expanduser()
     base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
     return Path(base) / "jackbox"
+
+
+def cache_dir() -> Path:
+    """The cache folder: the configured one, or, where nothing can be written there, a
+    temporary folder for this process (compiled code is then not kept; one warning)."""
+    folder = configured_cache_dir()
+    key = str(folder)
+    if key in _fallback:
+        return _fallback[key]
+    if key not in _writable:
+        _writable[key] = _can_write(folder)
+        if not _writable[key]:
+            _fallback[key] = Path(tempfile.mkdtemp(prefix="jackbox-cache-"))
+            _warn(f"the cache folder {folder} cannot be written: compiling into {_fallback[key]} "
+                  f"for this process only (set JACKBOX_CACHE_DIR to a writable folder to keep it)")
+            return _fallback[key]
+    return folder
+
+
+def _can_write(folder: Path) -> bool:
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=folder).close()
+        return True
+    except OSError:
+        return False
+
+
+_writable: dict[str, bool] = {}
 
 
 def recorded_hash(path: Path) -> str | None:
@@ -85,24 +125,53 @@ def model_path(scene: Scene) -> Path:
     """Where the current generated module of `scene` is, or will be written.
 
     The structure decides, not the name: a scene with a built-in's structure
-    (a copy of ``drop.toml`` under another name, say) uses the committed module.
+    (a copy of ``drop.toml`` under another name, say) uses the committed module,
+    unless that module is damaged (then the cache's copy serves).
     """
     digest = model_hash(scene.structure())
     if scene.builtin and recorded_hash(GENERATED_DIR / f"{scene.name}.py") == digest:
-        return GENERATED_DIR / f"{scene.name}.py"
-    return committed_model(digest) or cached_model_path(scene)
+        committed = GENERATED_DIR / f"{scene.name}.py"
+    else:
+        committed = committed_model(digest)
+    if committed is not None and intact(committed):
+        return committed
+    if committed is not None:
+        _warn(f"{committed} is damaged or was edited by hand (its seal does not match): "
+              f"using a copy generated into the cache instead (jackbox build restores it)")
+    return cached_model_path(scene)
 
 
 def ensure_model(scene: Scene, log=None) -> Path:
-    """The generated module of `scene`, generating it first if it is missing or stale."""
+    """The generated module of `scene`, generating it first if it is missing, stale or damaged."""
     path = model_path(scene)
-    if recorded_hash(path) != model_hash(scene.structure()):
+    current = recorded_hash(path) == model_hash(scene.structure())
+    if not current or not intact(path):
         from codegen.driver import build   # sympy is only needed here
 
+        if current:
+            _warn(f"{path} was damaged (its seal does not match its text): generating it again")
         result = build(scene, path)
+        _intact.clear()
         if log:
             log(f"generated {path} ({sum(result.seconds.values()):.2f} s)")
     return path
+
+
+def intact(path: Path) -> bool:
+    """Whether a generated module is whole and unchanged: its last line seals the text above.
+
+    Read and hashed once per process for each version of the file (by stat).
+    """
+    try:
+        stamp = (str(path), *_stat(path))
+    except OSError:
+        return False
+    if stamp not in _intact:
+        try:
+            _intact[stamp] = is_sealed(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError):
+            _intact[stamp] = False
+    return _intact[stamp]
 
 
 def kernel_source(model_text: str, kernel_text: str | None = None) -> str:
@@ -178,6 +247,24 @@ def compile_kernel(module: ModuleType, method: str | None = None, n_rec: int = 2
     t0 = time.perf_counter()
     if numba.config.DISABLE_JIT:
         return {"seconds": 0.0, "cache": "disabled"}
+    if module.__file__ not in _verified:
+        _verified.add(module.__file__)
+        _check_manifest(module)
+    try:
+        result = _compile(module, method, n_rec, t0)
+    except Exception as exc:       # a damaged cache entry that slipped past the manifest
+        if not _numba_files(module):
+            raise
+        _warn(f"loading the compiled {method or 'exact and naive'} loop of {Path(module.__file__).name} "
+              f"from the cache failed ({type(exc).__name__}: {str(exc)[:120]}): compiling it again")
+        _clear_numba_files(module)      # the dispatchers find no entry now, and compile
+        result = _compile(module, method, n_rec, t0)
+    if result["cache"] == "miss":
+        _write_manifest(module)
+    return result
+
+
+def _compile(module: ModuleType, method: str | None, n_rec: int, t0: float) -> dict:
     wanted = {"exact": ("integrate_exact",), "naive": ("integrate",),
               "ensemble": ("run_members", "start_gaps"), "chaos": ("run_twin_members", "start_gaps"),
               None: ("integrate", "integrate_exact")}[method]
@@ -221,6 +308,64 @@ def is_cached(module: ModuleType, method: str) -> bool:
     """Whether Numba's cache beside the kernel module holds `method`'s loop (so no compile is due)."""
     path = Path(module.__file__)
     return any(path.parent.glob(f"__pycache__/{path.stem}.{ENTRY[method]}-*.nbi"))
+
+
+def _numba_files(module: ModuleType) -> list[Path]:
+    """Numba's cache files (index and machine code) beside a kernel module."""
+    path = Path(module.__file__)
+    return sorted(path.parent.glob(f"__pycache__/{path.stem}.*.nb[ic]"))
+
+
+def _manifest(module: ModuleType) -> Path:
+    path = Path(module.__file__)
+    return path.parent / "__pycache__" / f"{path.stem}.sums.json"
+
+
+def _write_manifest(module: ModuleType) -> None:
+    """Record the checksums of the kernel's cache files (after a compile wrote some)."""
+    sums = {f.name: _sha256(f) for f in _numba_files(module)}
+    try:
+        write_atomic(_manifest(module), json.dumps(sums, indent=0, sort_keys=True))
+    except OSError:
+        pass     # a read-only cache: its files are what they are
+
+
+def _check_manifest(module: ModuleType) -> None:
+    """Remove the kernel's cache files when one no longer matches its recorded checksum.
+
+    Numba reads its index and machine code without checking them: a truncated
+    or altered file fails on every later load (or worse). Files the manifest
+    does not list (written by another process since) are left to Numba.
+    """
+    path = _manifest(module)
+    if not path.exists():
+        return
+    try:
+        sums = json.loads(path.read_text())
+        bad = [name for name, digest in sums.items()
+               if (path.parent / name).exists() and _sha256(path.parent / name) != digest]
+    except (OSError, ValueError, AttributeError):
+        bad = [path.name]
+    if bad:
+        _warn(f"the compiled code of {Path(module.__file__).name} in the cache is damaged ({bad[0]}"
+              f"{f' and {len(bad) - 1} more' if len(bad) > 1 else ''}): compiling it again")
+        _clear_numba_files(module)
+
+
+def _clear_numba_files(module: ModuleType) -> None:
+    for f in [*_numba_files(module), _manifest(module)]:
+        try:
+            f.unlink(missing_ok=True)
+        except OSError:
+            pass
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _warn(message: str) -> None:
+    warnings.warn(message, CacheWarning, stacklevel=3)
 
 
 def _functions_of(model_text: str) -> tuple[str, ...]:

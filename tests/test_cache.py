@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import jackbox
+from codegen.version import SEAL, seal
 from jackbox import loader
 
 from .conftest import write_scene
@@ -70,11 +71,14 @@ def test_edited_model_module_is_recompiled(fresh_cache, tmp_path):
     before = jackbox.simulate(scene, t_end=0.3, method=METHOD)
     path = loader.ensure_model(scene)
     assert path.parent == fresh_cache / "models"
-    # a hand edit that keeps the header (and so the hash): gravity pushes up, in
-    # accel() and in accel_time_s() (the free-flight loop's time terms)
+    # an edit that keeps the header (and so the hash) and is sealed again, as a
+    # compiler change that forgot its version would write it: gravity pushes up, in
+    # accel() and in accel_time_s() (the free-flight loop's time terms). (An edit
+    # without a new seal is damage: tests/test_cache_health.py.)
     text = path.read_text()
-    assert text.count("    _x2 = -p_g\n") == 2
-    path.write_text(text.replace("    _x2 = -p_g\n", "    _x2 = p_g\n"))
+    body = text[: text.rindex(SEAL)].removesuffix("\n")
+    assert body.count("    _x2 = -p_g\n") == 2
+    path.write_text(seal(body.replace("    _x2 = -p_g\n", "    _x2 = p_g\n")))
     after = jackbox.simulate(scene, t_end=0.3, method=METHOD)
     assert after.meta["kernel"]["cache"] == "miss"
     assert after.q[-1, 4] > before.q[-1, 4] + 0.5      # the jack rose instead of falling
