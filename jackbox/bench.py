@@ -69,8 +69,14 @@ SIZES = {
 TARGET_SPEEDUP, TARGET_C_RATIO, TARGET_RATE, TARGET_EFFICIENCY = 500.0, 1.3, 2.5e7, 0.85
 
 
-def default_out() -> Path:
-    """``benchmarks/results`` of the checkout jackbox runs from, else ``./jackbox-bench``."""
+def default_out(quick: bool = False) -> Path:
+    """``benchmarks/results`` of the checkout jackbox runs from, else ``./jackbox-bench``.
+
+    A quick run (whose figures mean little) never replaces the committed results:
+    it goes to ``./jackbox-bench-quick`` unless ``--out`` says otherwise.
+    """
+    if quick:
+        return Path("jackbox-bench-quick")
     if (ROOT / "pyproject.toml").is_file() and (ROOT / "benchmarks").is_dir():
         return ROOT / "benchmarks" / "results"
     return Path("jackbox-bench")
@@ -83,7 +89,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="samples per figure; the figures are their medians (default: 5)")
     parser.add_argument("--out", type=Path, metavar="DIR", default=None,
                         help="where throughput.md and throughput.json go (default: benchmarks/results "
-                             "in a checkout, else ./jackbox-bench)")
+                             "in a checkout, else ./jackbox-bench; with --quick, ./jackbox-bench-quick)")
     parser.add_argument("--quick", action="store_true",
                         help="tiny sizes, to check that the benchmark runs (its figures mean little)")
     parser.add_argument("--no-cold", action="store_true",
@@ -106,7 +112,7 @@ def run(args) -> int:
     if args.repeat < 1:
         raise JackboxError(f"--repeat must be at least 1, got {args.repeat}")
     size = SIZES["quick" if args.quick else "full"]
-    out = args.out if args.out is not None else default_out()
+    out = args.out if args.out is not None else default_out(args.quick)
     t_start = time.perf_counter()
     load_start = _load_average()
     rows = [bench_scene(name, args.repeat, size, cold=not args.no_cold) for name in scenes]

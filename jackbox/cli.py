@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 import warnings
@@ -148,8 +149,9 @@ def _parser() -> argparse.ArgumentParser:
     plot = sub.add_parser("plot", help="draw the time series of a saved trajectory",
                           description="Write the time series PNG of a trajectory .npz (as jackbox run does).")
     plot.add_argument("file", type=Path, metavar="FILE.npz", help="a trajectory written by jackbox run")
-    plot.add_argument("--out", type=Path, metavar="PATH.png",
-                      help="output image (default: timeseries.png beside a run's trajectory.npz, "
+    plot.add_argument("--out", type=Path, metavar="PATH.png|.pdf|.svg",
+                      help="output image, its format from the extension: png, pdf or svg (default: "
+                           "timeseries.png beside a run's trajectory.npz, "
                            "else FILE with .png)")
     plot.add_argument("--quiet", "-q", action="store_true", help="no summary")
     plot.set_defaults(func=cmd_plot)
@@ -387,7 +389,20 @@ def _out_dir(args, scene) -> Path:
     out_dir = args.out if args.out is not None else Path("runs") / scene.name
     if out_dir.exists() and not out_dir.is_dir():
         raise JackboxError(f"--out {out_dir}: exists and is not a folder")
+    _check_writable(out_dir)
     return out_dir
+
+
+def _check_writable(path: Path) -> None:
+    """Refuse, before any work, an output place that cannot be written: the nearest
+    existing folder on its path must be a writable folder."""
+    existing = path.absolute()
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise JackboxError(f"--out {path}: {existing} is a file, not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise JackboxError(f"--out {path}: {existing} cannot be written")
 
 
 def _out_file(out: Path | None, source: Path, run_name: str, suffix: str) -> Path:
@@ -397,6 +412,7 @@ def _out_file(out: Path | None, source: Path, run_name: str, suffix: str) -> Pat
         source.with_name(run_name) if source.stem == "trajectory" else source.with_suffix(suffix))
     if path.is_dir():
         raise JackboxError(f"--out {path}: is a folder (give a file name)")
+    _check_writable(path.parent)
     return path
 
 
@@ -501,6 +517,7 @@ def cmd_plot(args) -> int:
     from . import plots
 
     out = _out_file(args.out, args.file, "timeseries.png", ".png")
+    plots.figure_format(out)      # png, pdf or svg: refused before any work
     traj = _load_trajectory(args.file)
     path = plots.write_timeseries(traj, out)
     if not args.quiet:

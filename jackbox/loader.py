@@ -323,7 +323,7 @@ def _manifest(module: ModuleType) -> Path:
 
 def _write_manifest(module: ModuleType) -> None:
     """Record the checksums of the kernel's cache files (after a compile wrote some)."""
-    sums = {f.name: _sha256(f) for f in _numba_files(module)}
+    sums = {f.name: [f.stat().st_ino, _sha256(f)] for f in _numba_files(module)}
     try:
         write_atomic(_manifest(module), json.dumps(sums, indent=0, sort_keys=True))
     except OSError:
@@ -334,17 +334,22 @@ def _check_manifest(module: ModuleType) -> None:
     """Remove the kernel's cache files when one no longer matches its recorded checksum.
 
     Numba reads its index and machine code without checking them: a truncated
-    or altered file fails on every later load (or worse). Files the manifest
-    does not list (written by another process since) are left to Numba.
+    or altered file fails on every later load (or worse). Numba replaces a file
+    by renaming a new one over it (a new inode), so a file another process has
+    written since, like one the manifest does not list, is left to Numba; the
+    same inode with other bytes is damage.
     """
     path = _manifest(module)
     if not path.exists():
         return
     try:
         sums = json.loads(path.read_text())
-        bad = [name for name, digest in sums.items()
-               if (path.parent / name).exists() and _sha256(path.parent / name) != digest]
-    except (OSError, ValueError, AttributeError):
+        bad = []
+        for name, (inode, digest) in sums.items():
+            f = path.parent / name
+            if f.exists() and f.stat().st_ino == inode and _sha256(f) != digest:
+                bad.append(name)
+    except (OSError, ValueError, TypeError, AttributeError):
         bad = [path.name]
     if bad:
         _warn(f"the compiled code of {Path(module.__file__).name} in the cache is damaged ({bad[0]}"

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from .errors import JackboxError
 from .fileio import write_atomic
 from .geometry import Geometry
 from .scene import WALLS
@@ -393,9 +394,24 @@ def _count_bars(ax, summaries: list[Summary], labels: list[str], colors: list[st
 
 # --- files ------------------------------------------------------------------------------------
 
+#: the picture formats a file name may ask for (its extension)
+FORMATS = ("png", "pdf", "svg")
+
+
+def figure_format(path: str | Path) -> str:
+    """The format a picture's file name asks for: png, pdf or svg (anything else is refused)."""
+    ext = Path(path).suffix.lower().lstrip(".")
+    if ext not in FORMATS:
+        raise JackboxError(f"{path}: a picture is written as {', '.join('.' + f for f in FORMATS)}, "
+                           f"not {('.' + ext) if ext else 'a name without an extension'}")
+    return ext
+
+
 def save_figure(fig: Figure, path: str | Path) -> Path:
-    """Write a figure as PNG, atomically (an existing file is replaced whole or not at all)."""
-    return write_atomic(path, lambda fh: fig.savefig(fh, format="png", dpi=DPI))
+    """Write a figure in the format its name asks for (png, pdf, svg), atomically: an
+    existing file is replaced whole or not at all."""
+    fmt = figure_format(path)
+    return write_atomic(path, lambda fh: fig.savefig(fh, format=fmt, dpi=DPI))
 
 
 def write_timeseries(traj: Trajectory, path: str | Path, geometry: Geometry | None = None) -> Path:

@@ -1,0 +1,102 @@
+"""What a new user trips on: picture formats by extension, progress bars only on a
+terminal, quick benchmarks that leave the committed results alone, an unwritable
+--out refused before any work, and docs whose links resolve."""
+
+from __future__ import annotations
+
+import io
+import re
+import sys
+from pathlib import Path
+
+import pytest
+
+import jackbox
+from jackbox import bench, progress
+
+from .conftest import run_cli
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def saved_run(tmp_path_factory):
+    path = tmp_path_factory.mktemp("saved") / "trajectory.npz"
+    jackbox.simulate("drop", t_end=0.05).save(path)
+    return path
+
+
+@pytest.mark.parametrize("ext, magic", [("png", b"\x89PNG\r\n\x1a\n"), ("pdf", b"%PDF-"), ("svg", b"<?xml")])
+def test_plot_writes_the_format_its_extension_names(saved_run, tmp_path, capsys, ext, magic):
+    out = tmp_path / f"x.{ext}"
+    status, _, err = run_cli(capsys, "plot", str(saved_run), "--out", str(out), "-q")
+    assert status == 0, err
+    assert out.read_bytes().startswith(magic)
+
+
+def test_plot_refuses_a_format_it_cannot_write_before_any_work(saved_run, tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(jackbox.Trajectory, "load", _no_work)
+    status, out, err = run_cli(capsys, "plot", str(saved_run), "--out", str(tmp_path / "x.jpg"))
+    assert status == 2 and out == ""
+    assert err.strip().splitlines() == [
+        f"jackbox: error: {tmp_path / 'x.jpg'}: a picture is written as .png, .pdf, .svg, not .jpg"]
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("command", [["run", "drop", "--no-plots"], ["ensemble", "drop", "--n", "2"],
+                                     ["chaos", "drop", "--n", "2"],
+                                     ["compare", "drop", "--restitution", "1.0", "0.6"]])
+def test_an_out_that_cannot_be_written_is_refused_before_any_work(tmp_path, capsys, monkeypatch, command):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    monkeypatch.setattr(jackbox.loader, "kernel_for", _no_work)
+    status, out, err = run_cli(capsys, *command, "--t-end", "0.05", "--out", str(blocker / "out"))
+    assert status == 2, err
+    (line,) = err.strip().splitlines()
+    assert line == f"jackbox: error: --out {blocker / 'out'}: {blocker} is a file, not a folder"
+
+
+def test_progress_bars_only_on_a_terminal_unless_asked(monkeypatch):
+    monkeypatch.delenv("JACKBOX_PROGRESS", raising=False)
+    monkeypatch.setattr(sys, "stderr", io.StringIO())          # a log file, not a terminal
+    assert not progress.wanted(True)
+    assert isinstance(progress.progress_bar(10, True, "step"), progress._Off)
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    monkeypatch.setattr(sys, "stderr", Terminal())
+    assert progress.wanted(True) and not progress.wanted(False)
+    monkeypatch.setenv("JACKBOX_PROGRESS", "0")
+    assert not progress.wanted(True)
+    monkeypatch.setattr(sys, "stderr", io.StringIO())
+    monkeypatch.setenv("JACKBOX_PROGRESS", "1")
+    assert progress.wanted(True)
+    bar = progress.progress_bar(10, True, "step")
+    assert not isinstance(bar, progress._Off)
+    bar.close()
+
+
+def test_a_quick_benchmark_leaves_the_committed_results_alone():
+    assert bench.default_out(quick=True) == Path("jackbox-bench-quick")
+    assert bench.default_out(quick=False) == ROOT / "benchmarks" / "results"
+
+
+def test_every_link_in_the_docs_resolves():
+    link = re.compile(r"\]\(([^)\s]+)\)")
+    docs = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")),
+            *sorted((ROOT / "benchmarks" / "results").glob("*.md"))]
+    broken = []
+    for doc in docs:
+        for target in link.findall(doc.read_text(encoding="utf-8")):
+            if re.match(r"^[a-z]+://|^mailto:", target):
+                continue                      # no network here: outside links are not checked
+            path = target.split("#", 1)[0]
+            if path and not (doc.parent / path).exists():
+                broken.append(f"{doc.relative_to(ROOT)}: {target}")
+    assert broken == []
+
+
+def _no_work(*args, **kwargs):
+    raise AssertionError("a refused command must not start its work")
