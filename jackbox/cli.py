@@ -13,7 +13,9 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import signal
 import sys
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -52,6 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "command", None):
         parser.print_help()
         return 0
+    previous = _on_sigterm(_terminate)
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _show_warning
@@ -66,6 +69,26 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("jackbox: interrupted", file=sys.stderr)
         return 130
+    except _Terminated:
+        print("jackbox: terminated", file=sys.stderr)
+        return 143
+    finally:
+        _on_sigterm(previous)
+
+
+class _Terminated(BaseException):
+    """SIGTERM, raised where the program is, so that files being written are removed."""
+
+
+def _terminate(signum, frame):
+    raise _Terminated
+
+
+def _on_sigterm(handler):
+    """Install a SIGTERM handler (main thread only); returns the one it replaced."""
+    if handler is None or threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, handler)
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):

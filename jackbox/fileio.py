@@ -17,9 +17,10 @@ def write_atomic(path: str | Path, data: str | bytes | Callable[[IO[bytes]], Non
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_temporaries(path.parent)
     umask = os.umask(0)
     os.umask(umask)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=TMP_SUFFIX)
     try:
         with os.fdopen(fd, "wb") as fh:
             if callable(data):
@@ -32,3 +33,34 @@ def write_atomic(path: str | Path, data: str | bytes | Callable[[IO[bytes]], Non
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+TMP_SUFFIX = ".jackbox-tmp"
+
+
+def remove_stale_temporaries(folder: Path) -> list[Path]:
+    """Remove the temporary files that a killed writer (SIGKILL: no chance to clean up)
+    left in `folder`: those whose process no longer runs. Returns what was removed."""
+    removed = []
+    for tmp in folder.glob(f".*{TMP_SUFFIX}"):
+        try:
+            pid = int(tmp.name[: -len(TMP_SUFFIX)].split(".")[-2])
+        except (ValueError, IndexError):
+            continue
+        if pid != os.getpid() and not _alive(pid):
+            try:
+                tmp.unlink()
+                removed.append(tmp)
+            except OSError:
+                pass
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True       # someone else's process
+    return True

@@ -5,6 +5,7 @@ terminal, quick benchmarks that leave the committed results alone, an unwritable
 from __future__ import annotations
 
 import io
+import os
 import re
 import sys
 from pathlib import Path
@@ -100,3 +101,57 @@ def test_every_link_in_the_docs_resolves():
 
 def _no_work(*args, **kwargs):
     raise AssertionError("a refused command must not start its work")
+
+
+def test_sigterm_while_writing_leaves_no_temporary_file(tmp_path, capsys, monkeypatch):
+    import signal
+
+    import numpy as np
+
+    def killed_while_writing(fh, **arrays):
+        fh.write(b"half a file")
+        os.kill(os.getpid(), signal.SIGTERM)       # the handler raises here, mid-write
+
+    monkeypatch.setattr(np, "savez_compressed", killed_while_writing)
+    monkeypatch.setattr(np, "savez", killed_while_writing)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "trajectory.npz").write_bytes(b"an older run")
+    before = signal.getsignal(signal.SIGTERM)
+    status, _, err = run_cli(capsys, "run", "drop", "--t-end", "0.05", "--out", str(out), "--no-plots", "-q")
+    assert status == 143 and "terminated" in err
+    assert sorted(p.name for p in out.iterdir()) == ["trajectory.npz"]     # no temporary file
+    assert (out / "trajectory.npz").read_bytes() == b"an older run"        # nothing lost
+    assert signal.getsignal(signal.SIGTERM) == before                   # the handler was put back
+
+
+def test_a_temporary_file_left_by_a_killed_writer_is_removed_by_the_next_write(tmp_path):
+    import subprocess
+
+    from jackbox.fileio import TMP_SUFFIX, write_atomic
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True, check=True)
+    stale = tmp_path / f".trajectory.npz.{int(dead.stdout)}.abc123{TMP_SUFFIX}"
+    stale.write_bytes(b"x" * 1000)
+    mine = tmp_path / f".other.npz.{os.getpid()}.def456{TMP_SUFFIX}"        # a live writer's: kept
+    mine.write_bytes(b"y")
+    write_atomic(tmp_path / "timeseries.png", b"png")
+    assert not stale.exists() and mine.exists()
+
+
+def test_large_trajectories_are_saved_uncompressed_small_ones_compressed(tmp_path):
+    import zipfile
+
+    from jackbox import trajectory
+
+    traj = jackbox.simulate("drop", t_end=0.05)
+    small = traj.save(tmp_path / "small.npz")
+    with zipfile.ZipFile(small) as z:
+        assert {i.compress_type for i in z.infolist()} == {zipfile.ZIP_DEFLATED}
+    big = traj.save(tmp_path / "big.npz", compress=False)
+    with zipfile.ZipFile(big) as z:
+        assert {i.compress_type for i in z.infolist()} == {zipfile.ZIP_STORED}
+    assert trajectory.COMPRESS_BELOW <= 16 << 20      # a 1e6-step run (112 MB) is stored
+    np_equal = jackbox.Trajectory.load(big)
+    assert (np_equal.q == traj.q).all()
