@@ -371,6 +371,8 @@ def write_animation(traj: Trajectory, path: str | Path, *, plotlyjs: str = "inli
     fig = figure(traj, geometry=geometry, progress=progress, **kw)
     meta = traj.meta
     html = to_html(fig, plotlyjs, title=f"jackbox: {meta.get('scene', '')} ({meta.get('method', '')})")
+    if meta.get("run_id"):
+        html = html.replace("<head>", f'<head><meta name="jackbox-run" content="{_escape(meta["run_id"])}">', 1)
     path = Path(path)
     if plotlyjs == "beside":
         from plotly.offline import get_plotlyjs

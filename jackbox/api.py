@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import os
 import time
+import uuid
 from dataclasses import dataclass
 
 import numba
@@ -162,6 +163,8 @@ def finish(run: Run, t, q, qd, energy, impact_t, impact_k, extra: dict,
            contact_t=None, contact_k=None, contact_kind=None) -> Trajectory:
     scene = run.scene
     meta = {
+        # one id per run: its trajectory, time series and animation all carry it
+        "run_id": uuid.uuid4().hex[:16],
         "jackbox": __version__, "scene": scene.name, "method": run.method, "dt": run.dt,
         "n_steps": run.n_steps, "record_every": run.record_every,
         "params": dict(zip(scene.param_names, run.p.tolist())),

@@ -461,6 +461,11 @@ def cmd_run(args) -> int:
     written = [traj.save(out_dir / "trajectory.npz")]
     if not args.no_plots:
         written += _pictures(traj, scene, out_dir, progress=not args.quiet)
+    # a folder never mixes two runs: pictures of an older one beside this trajectory go
+    removed = [out_dir / name for name in RUN_PICTURES
+               if out_dir / name not in written and (out_dir / name).exists()]
+    for path in removed:
+        path.unlink()
     if not args.quiet:
         k = traj.meta["kernel"]
         steps = traj.meta["n_steps"]
@@ -477,7 +482,13 @@ def cmd_run(args) -> int:
             print(f"speed      {k['steps_per_second']:.3g} steps/s")
         for path in written:
             print(f"wrote      {path}")
+        for path in removed:
+            print(f"removed    {path} (an older run's)")
     return 0
+
+
+#: the pictures `jackbox run` writes beside trajectory.npz
+RUN_PICTURES = ("timeseries.png", "animation.html")
 
 
 def _pictures(traj, scene, out_dir: Path, progress: bool) -> list[Path]:

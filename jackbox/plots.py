@@ -407,15 +407,17 @@ def figure_format(path: str | Path) -> str:
     return ext
 
 
-def save_figure(fig: Figure, path: str | Path) -> Path:
+def save_figure(fig: Figure, path: str | Path, run_id: str | None = None) -> Path:
     """Write a figure in the format its name asks for (png, pdf, svg), atomically: an
-    existing file is replaced whole or not at all."""
+    existing file is replaced whole or not at all. run_id: the run it shows, written
+    into the file's metadata (its title: ``jackbox run <id>``)."""
     fmt = figure_format(path)
-    return write_atomic(path, lambda fh: fig.savefig(fh, format=fmt, dpi=DPI))
+    metadata = {"Title": f"jackbox run {run_id}"} if run_id else None
+    return write_atomic(path, lambda fh: fig.savefig(fh, format=fmt, dpi=DPI, metadata=metadata))
 
 
 def write_timeseries(traj: Trajectory, path: str | Path, geometry: Geometry | None = None) -> Path:
-    return save_figure(timeseries(traj, geometry), path)
+    return save_figure(timeseries(traj, geometry), path, traj.meta.get("run_id"))
 
 
 def write_comparison(trajs: list[Trajectory], labels: list[str], path: str | Path, title: str = "") -> Path:

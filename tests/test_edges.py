@@ -155,3 +155,19 @@ def test_large_trajectories_are_saved_uncompressed_small_ones_compressed(tmp_pat
     assert trajectory.COMPRESS_BELOW <= 16 << 20      # a 1e6-step run (112 MB) is stored
     np_equal = jackbox.Trajectory.load(big)
     assert (np_equal.q == traj.q).all()
+
+
+def test_a_runs_files_carry_one_run_id_and_a_folder_never_mixes_two_runs(tmp_path, capsys):
+    out = tmp_path / "out"
+    status, _, err = run_cli(capsys, "run", "drop", "--t-end", "0.05", "--out", str(out), "-q")
+    assert status == 0, err
+    run_id = jackbox.Trajectory.load(out / "trajectory.npz").meta["run_id"]
+    assert re.fullmatch(r"[0-9a-f]{16}", run_id)
+    assert f"tEXtTitle\x00jackbox run {run_id}".encode() in (out / "timeseries.png").read_bytes()
+    assert f'<meta name="jackbox-run" content="{run_id}">' in (out / "animation.html").read_text()
+    # a second run without pictures: the first run's pictures do not stay beside its trajectory
+    status, stdout, _ = run_cli(capsys, "run", "drop", "--t-end", "0.05", "--out", str(out), "--no-plots")
+    assert status == 0
+    assert sorted(p.name for p in out.iterdir()) == ["trajectory.npz"]
+    assert jackbox.Trajectory.load(out / "trajectory.npz").meta["run_id"] != run_id
+    assert f"removed    {out / 'timeseries.png'} (an older run's)" in stdout
