@@ -1,5 +1,7 @@
 """The ``jackbox`` command line: help, scenes, run (output file, summary, --set), the
-one-line refusals of user mistakes, and build --check.
+one-line refusals of user mistakes, build (--check, a stale module, a scene file's model
+in the cache) and the energy figures that compare prints. (ensemble and chaos: in
+test_ensemble.py; --dask local: in test_dask.py.)
 
 Most tests call ``jackbox.cli.main`` in-process; a few go through a real
 ``python -m jackbox.cli`` to see exactly what a user sees. Runs are 0.2 s of the
@@ -9,6 +11,7 @@ built-in 'drop' scene, whose kernel is reused from the user's cache.
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -20,7 +23,7 @@ import jackbox
 from jackbox.cli import main
 from jackbox.scene import builtin_scenes
 
-from .conftest import run_cli
+from .conftest import FREE_FLOAT, run_cli, write_scene
 
 # SCENES.md, "Output: trajectory file (.npz)"
 NPZ_KEYS = {"t", "q", "qd", "energy", "impact_t", "impact_constraint", "constraint_names",
@@ -187,13 +190,21 @@ def test_run_set_restitution_reaches_meta(capsys, tmp_path):
 
 
 def test_run_scene_file(capsys, tmp_path):
+    from jackbox import loader
+
     path = tmp_path / "mine.toml"
     path.write_text(DROP_TEXT.replace('name = "drop"', 'name = "mine"'), encoding="utf-8")
-    # same structure as drop: the same compiled kernel serves it
+    # same structure as drop: the same compiled kernel serves it, nothing is generated
+    # or compiled for it (the cache is keyed by structure, not by name)
+    mine = jackbox.load_scene(path)
+    assert loader.model_path(mine) == loader.GENERATED_DIR / "drop.py"
+    assert loader.kernel_for(mine) is loader.kernel_for(jackbox.load_scene("drop"))
+    jackbox.simulate("drop", t_end=0.01)          # drop's exact loop compiled (or loaded)
     status, _, err = run_cli(capsys, "run", str(path), "--t-end", T_END, "--out", "res", "-q")
     assert status == 0, err
     traj = jackbox.Trajectory.load(tmp_path / "res" / "trajectory.npz")
     assert traj.meta["scene"] == "mine"
+    assert traj.meta["kernel"]["cache"] == "memory"     # drop's loop, not a compile of its own
     assert 'name = "mine"' in traj.scene
 
 
@@ -307,3 +318,120 @@ def test_build_check_builtins_current(capsys):
     assert len(lines) == len(builtin_scenes())
     for name in ("drop", "shaken", "spring"):
         assert any(line.startswith("current") and line.endswith(f"{name}.py") for line in lines), out
+
+
+def test_build_check_names_a_stale_builtin_and_build_rewrites_it(capsys, tmp_path, monkeypatch):
+    # a copy of generated/ whose drop.py records another model hash: --check says so and
+    # exits 1, writing nothing; build regenerates it, byte-identical to the committed module
+    from jackbox import loader
+
+    folder = tmp_path / "generated"
+    folder.mkdir()
+    committed = (loader.GENERATED_DIR / "drop.py").read_text(encoding="utf-8")
+    recorded = loader.recorded_hash(loader.GENERATED_DIR / "drop.py")
+    stale = committed.replace(f'MODEL_HASH = "{recorded}"', 'MODEL_HASH = "0000000000000000"')
+    assert stale != committed
+    (folder / "drop.py").write_text(stale, encoding="utf-8")
+    monkeypatch.setattr(loader, "GENERATED_DIR", folder)
+
+    status, out, err = run_cli(capsys, "build", "--check", "drop")
+    assert status == 1, out + err
+    assert out.splitlines() == [f"STALE    {folder / 'drop.py'}"]
+    assert (folder / "drop.py").read_text(encoding="utf-8") == stale
+
+    status, out, err = run_cli(capsys, "build", "drop")
+    assert status == 0, out + err
+    assert out.startswith(f"wrote      {folder / 'drop.py'}"), out
+    assert (folder / "drop.py").read_text(encoding="utf-8") == committed
+
+    status, out, err = run_cli(capsys, "build", "--check", "drop")
+    assert status == 0 and out.splitlines() == [f"current  {folder / 'drop.py'}"], out + err
+
+
+def test_build_scene_file_writes_its_model_into_the_cache(capsys, tmp_path, monkeypatch):
+    # README: a scene that is not built in has its module generated into the cache folder
+    # ($JACKBOX_CACHE_DIR), never into generated/; a second build leaves it byte-identical
+    from codegen.version import model_hash
+
+    from jackbox import loader
+
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("JACKBOX_CACHE_DIR", str(cache))
+    path = write_scene(tmp_path, FREE_FLOAT, "float.toml")       # no gravity: not a built-in's structure
+    scene = jackbox.load_scene(path)
+    digest = model_hash(scene.structure())
+    assert loader.committed_model(digest) is None
+
+    status, out, err = run_cli(capsys, "build", str(path))
+    assert status == 0, out + err
+    lines = out.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("wrote"), out
+    written = Path(lines[0].split()[1])
+    assert written.is_relative_to(cache) and written.is_file()
+    assert written == loader.model_path(scene)                   # where a run looks for it
+    text = written.read_text(encoding="utf-8")
+    assert loader.recorded_hash(written) == digest
+    assert "Do NOT modify by hand" in text
+    before = written.stat().st_mtime_ns
+    assert loader.ensure_model(scene) == written and written.stat().st_mtime_ns == before   # used as is
+
+    status, out, err = run_cli(capsys, "build", str(path))
+    assert status == 0 and out.startswith(f"unchanged  {written}"), out + err
+    assert written.read_text(encoding="utf-8") == text
+    assert [p.name for p in cache.rglob("*.py")] == [written.name]
+
+
+# --- compare ------------------------------------------------------------------------------
+
+def settled_at(t: np.ndarray, energy: np.ndarray) -> float | None:
+    """README: a run has settled once its energy stays within 1% of the energy it lost of its
+    final value, for at least the last 10% of the run (an elastic run, losing nothing, has not)."""
+    lost = energy[0] - energy[-1]
+    if not lost > 1e-9 * abs(energy[0]):
+        return None
+    outside = np.flatnonzero(np.abs(energy - energy[-1]) > 0.01 * lost)
+    i = outside[-1] + 1 if len(outside) else 0
+    return float(t[i]) if i < len(t) and t[-1] - t[i] >= 0.1 * (t[-1] - t[0]) else None
+
+
+def test_compare_prints_the_energy_of_each_run(capsys, tmp_path):
+    status, out, err = run_cli(capsys, "compare", "drop", "--restitution", "1.0", "0.6", "--out", "cmp")
+    assert status == 0, err
+    rows = {}
+    for line in out.splitlines():
+        cells = re.split(r"\s{2,}", line.strip())
+        if cells[0] in ("1", "0.6"):
+            rows[float(cells[0])] = cells
+    assert sorted(rows) == [0.6, 1.0], out
+    # drop's start, by hand: both bodies at y = 2 (masses 10 and 1), the jack moving at 0.8 m/s
+    # and spinning at 6 rad/s (J = 2 m a^2 / 3, a = 0.25)
+    e0 = 9.81 * (10.0 + 1.0) * 2.0 + 0.5 * 0.8 ** 2 + 0.5 * (2 * 0.25 ** 2 / 3) * 6.0 ** 2
+    trajs = {}
+    for e, cells in rows.items():
+        traj = jackbox.simulate("drop", params={"e": e, "e_ground": e})     # the scene's 5 s
+        trajs[e] = traj
+        start, end, lost, impulses, settles = cells[1:]
+        # printed with 6 significant digits (the loss with 4, its share with 1 decimal)
+        assert traj.energy[0] == pytest.approx(e0, rel=1e-14)
+        assert float(start.removesuffix(" J")) == pytest.approx(traj.energy[0], rel=5e-6), cells
+        assert float(end.removesuffix(" J")) == pytest.approx(traj.energy[-1], rel=5e-6), cells
+        m = re.fullmatch(r"(\S+) J \((\S+)%\)", lost)
+        assert m, cells
+        loss = traj.energy[0] - traj.energy[-1]
+        if e == 1.0:       # elastic: the energy is kept to round-off, and the loss printed as 0
+            assert abs(loss) < 1e-12 * e0 and float(m[1]) == 0.0 and float(m[2]) == 0.0, cells
+        else:
+            assert loss > 0.1 * e0
+            assert float(m[1]) == pytest.approx(loss, rel=5e-4), cells
+            assert float(m[2]) == pytest.approx(100 * loss / traj.energy[0], abs=0.05), cells
+        assert int(impulses) == len(traj.impact_t), cells
+        t_s = settled_at(traj.t, traj.energy)
+        if t_s is None:
+            assert settles == "did not settle", cells
+        else:
+            m = re.fullmatch(r"at t = (\S+) s", settles)
+            assert m and float(m[1]) == pytest.approx(t_s, rel=5e-3), cells
+    # README: the elastic box keeps bouncing and the inelastic one settles
+    assert rows[1.0][5] == "did not settle" and rows[0.6][5].startswith("at t = ")
+    assert np.array_equal(trajs[1.0].t, trajs[0.6].t)
+    assert (tmp_path / "cmp" / "comparison.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -8,7 +8,7 @@ import dataclasses
 import os
 import signal
 import socket
-import threading
+import subprocess
 import time
 import uuid
 from pathlib import Path
@@ -144,6 +144,36 @@ def test_run_chaos_chunk_on_dask_equals_one_process(cluster, study):
     assert_same(out, whole)
 
 
+def test_cli_dask_local_equals_the_run_in_this_process(tmp_path, capsys):
+    """README: ``jackbox ensemble ... --dask local`` (here 2 worker processes) gives every array
+    equal to the single-process run's."""
+    import json
+
+    from jackbox import ensemble
+
+    from .conftest import run_cli
+
+    args = ["--n", "40", "--t-end", "1.5", "--perturb", "theta_jack=1e-2", "--perturb", "x_jack_dot=0.1",
+            "--samples", "0.5", "1.0", "--seed", "4"]
+    status, stdout, stderr = run_cli(capsys, "ensemble", "shaken", *args, "--dask", "local", "--workers", "2",
+                                     "--chunk", "8", "--out", str(tmp_path / "dask"))
+    assert status == 0, stderr
+    assert "dask: local cluster of 2 worker processes" in stderr
+    assert "dask: 5 chunks" in stderr
+    assert "member-steps/s on dask local, 2 workers" in stdout
+    here = ensemble.ensemble("shaken", 40, perturb={"theta_jack": 1e-2, "x_jack_dot": 0.1}, t_end=1.5,
+                             samples=[0.5, 1.0], seed=4)
+    assert here.impacts.min() > 0
+    with np.load(tmp_path / "dask" / "ensemble.npz") as data:
+        for name in ("q", "qd", "energy", "impacts", "first_impact_t", "status", "steps", "samples_q",
+                     "samples_qd", "q0", "qd0", "params"):
+            want = getattr(here, name)
+            assert (data[name].dtype, data[name].shape) == (want.dtype, want.shape), name
+            assert data[name].tobytes() == want.tobytes(), name
+        meta = json.loads(str(data["meta"]))
+    assert (meta["where"], meta["chunk"]) == ("dask local, 2 workers", 8)
+
+
 def test_local_cluster_is_started_and_closed(capsys):
     import psutil
 
@@ -160,47 +190,100 @@ def test_local_cluster_is_started_and_closed(capsys):
         time.sleep(0.1)
 
 
-def test_a_killed_worker_loses_no_member(tmp_path):
-    """SIGKILL a worker in the middle of a chunk: the scheduler runs the chunk again elsewhere,
-    the nanny starts a new worker, and every member comes back exactly once."""
-    spec = ToySpec(seed=5, delay=0.4, marker_dir=str(tmp_path))
-    bounds = chunks(64, 4)                      # 16 chunks of 0.4 s on 2 workers: ~3 s of work
-    killed = {}
+@dataclasses.dataclass(frozen=True)
+class KillingStudy:
+    """An ensemble study whose chunk `victim` (by its start) is SIGKILLed, with its worker,
+    `after` seconds into its first attempt's run_chunk; markers as in toy_chunk."""
 
-    def kill_a_busy_worker(pids):
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            names = {p.name for p in tmp_path.iterdir()}
-            busy = [n[:-6] for n in names if n.endswith(".start") and n[:-6] + ".done" not in names
-                    and int(n.split(".")[1]) in pids]
-            if any(n.endswith(".done") for n in names) and busy:
-                # the latest to start: the furthest from its end, so surely killed mid-chunk
-                attempt = max(busy, key=lambda a: (tmp_path / (a + ".start")).stat().st_mtime)
-                killed.update(attempt=attempt, pid=int(attempt.split(".")[1]),
-                              done=sum(n.endswith(".done") for n in names))
-                os.kill(killed["pid"], signal.SIGKILL)
-                return
-            time.sleep(0.02)
+    study: object
+    marker_dir: str
+    victim: int
+    after: float
 
+
+def run_chunk_and_die_once(spec: KillingStudy, start: int, stop: int) -> dict[str, np.ndarray]:
+    from jackbox import ensemble
+
+    attempt = f"{start}.{os.getpid()}.{uuid.uuid4().hex[:8]}"
+    marker = Path(spec.marker_dir)
+    (marker / (attempt + ".start")).touch()
+    if start == spec.victim:
+        try:
+            os.close(os.open(marker / "armed", os.O_CREAT | os.O_EXCL))
+        except FileExistsError:
+            pass                                # a second attempt: runs to its end
+        else:
+            # another process kills this one while the kernel runs: the kernel holds the GIL,
+            # so a thread of this process could not
+            subprocess.Popen(["/bin/sh", "-c", f"sleep {spec.after}; kill -9 {os.getpid()} && "
+                                               f"echo {attempt} > {marker / 'killed'}"])
+    result = ensemble.run_chunk(spec.study, start, stop)
+    (marker / (attempt + ".done")).touch()
+    return result
+
+
+def test_a_worker_killed_in_the_kernel_loses_no_member(tmp_path):
+    """SIGKILL a worker while it runs the ensemble kernel (run_chunk) on a chunk: the scheduler
+    runs the chunk again elsewhere, the nanny starts a new worker, and every member comes back
+    exactly once, equal to the bit to one process's run."""
+    from jackbox import ensemble
+
+    # dt = 1e-5 to 2 s, through the first impulses: 2e5 steps a member, ~12 ms on one core.
+    # The victim chunk of 32 members runs ~0.35 s; it is killed 0.05 s in, and the kernel is
+    # loaded on every worker beforehand, so the kill lands in the kernel's loop.
+    study = ensemble.plan("shaken", 40, perturb={"theta_jack": 1e-2, "x_jack_dot": 0.1}, t_end=2.0, dt=1e-5,
+                          samples=[0.5, 1.5], seed=6)
+    spec = KillingStudy(study, str(tmp_path), victim=0, after=0.05)
+    bounds = [(0, 32)] + chunks(40, 2)[16:]     # the victim first, then four chunks of 2
+    whole = ensemble.run_chunk(study, 0, study.n)       # (and the kernel in the disk cache)
+    assert whole["impacts"].min() > 0
     with local_cluster() as cluster, distributed.Client(cluster, set_as_default=False) as client:
         pids = client.run(os.getpid)            # {worker address: pid}
-        killer = threading.Thread(target=kill_a_busy_worker, args=(set(pids.values()),))
-        killer.start()
-        out = jd.run_on_dask(toy_chunk, spec, bounds, address=cluster.scheduler_address,
+        client.run(ensemble.run_chunk, study, 0, 1)     # every worker loads the kernel
+        out = jd.run_on_dask(run_chunk_and_die_once, spec, bounds, address=cluster.scheduler_address,
                              progress=False)
-        killer.join()
         client.wait_for_workers(2, timeout=30)  # the nanny has started a new worker
         after = client.run(os.getpid)
 
-    assert killed, "no chunk finished, or no worker was busy"
-    assert killed["done"] < len(bounds)         # work remained when the worker died
-    assert killed["pid"] not in after.values() and len(after) == 2
-    # the chunk it was running was not finished by it, and was run to the end by another worker
     names = {p.name for p in tmp_path.iterdir()}
-    assert killed["attempt"] + ".done" not in names
-    start = killed["attempt"].split(".")[0]
-    assert any(n.startswith(start + ".") and n.endswith(".done") for n in names)
-    assert_same(out, toy_chunk(ToySpec(seed=5), 0, 64))
+    assert "killed" in names, "the victim chunk was not killed"
+    killed = (tmp_path / "killed").read_text().strip()
+    pid = int(killed.split(".")[1])
+    assert pid in pids.values() and pid not in after.values() and len(after) == 2
+    # the killed attempt did not finish; another process ran the chunk to its end
+    assert killed + ".done" not in names
+    done = [n for n in names if n.startswith("0.") and n.endswith(".done")]
+    assert len(done) == 1 and int(done[0].split(".")[1]) != pid, names
+    for start, _ in bounds:                     # every chunk finished at least once
+        assert any(n.startswith(f"{start}.") and n.endswith(".done") for n in names), start
+    # each chunk's rows came back once, in place, and equal one process's run to the bit
+    assert [len(r["q"]) for r in out] == [stop - start for start, stop in bounds]
+    assert_same(out, whole)
+
+
+def die_until(spec: ToySpec, start: int, stop: int) -> dict[str, np.ndarray]:
+    """toy_chunk, but its first `spec.delay` attempts SIGKILL their own worker
+    (each leaves ``<start>.<pid>.start``)."""
+    marker = Path(spec.marker_dir)
+    attempts = len(list(marker.glob(f"{start}.*.start")))
+    (marker / f"{start}.{os.getpid()}.start").touch()
+    if attempts < spec.delay:
+        os.kill(os.getpid(), signal.SIGKILL)
+    return toy_chunk(ToySpec(spec.seed), start, stop)
+
+
+def test_a_local_cluster_survives_more_worker_deaths_than_dask_allows(tmp_path):
+    """README: a local cluster allows 10 worker deaths per chunk (Dask's default: 3, past
+    which the chunk fails with KilledWorker). A chunk that kills its worker 4 times still
+    comes back, from the 5th."""
+    import dask
+
+    assert dask.config.get("distributed.scheduler.allowed-failures") < 4   # Dask would give up
+    spec = ToySpec(seed=8, delay=4, marker_dir=str(tmp_path))
+    out = jd.run_on_dask(die_until, spec, [(0, 3)], n_workers=2, progress=False)
+    assert_same(out, toy_chunk(ToySpec(seed=8), 0, 3))
+    starts = [p.name for p in tmp_path.glob("0.*.start")]
+    assert len(starts) == 5 and len({n.split(".")[1] for n in starts}) == 5    # 5 worker processes
 
 
 def test_numba_threads_are_the_worker_cores_over_its_tasks(cluster):
