@@ -15,13 +15,14 @@ right twin (sympy.lambdify and plain Python); it is imported on first use.
 
 __version__ = "0.1.0"
 
-from .errors import JackboxError, NonFiniteStateError, SceneError, SimulationError  # noqa: E402
+from .errors import (JackboxError, NonFiniteStateError, RunStoppedError, SceneError,  # noqa: E402
+                     SimulationError, StalledError)
 from .scene import Scene, builtin_scenes, load_scene  # noqa: E402
 from .trajectory import Trajectory  # noqa: E402
 from .api import simulate  # noqa: E402
 
-__all__ = ["JackboxError", "NonFiniteStateError", "Scene", "SceneError", "SimulationError", "Trajectory",
-           "builtin_scenes", "load_scene", "simulate", "reference"]
+__all__ = ["JackboxError", "NonFiniteStateError", "RunStoppedError", "Scene", "SceneError", "SimulationError",
+           "StalledError", "Trajectory", "builtin_scenes", "load_scene", "simulate", "reference"]
 
 
 def __getattr__(name):

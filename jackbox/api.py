@@ -20,7 +20,7 @@ import numpy as np
 
 from . import __version__, loader
 from . import kernel as K
-from .errors import NonFiniteStateError, SimulationError
+from .errors import NonFiniteStateError, SimulationError, StalledError
 from .progress import progress_bar
 from .scene import Scene, load_scene, param_array
 from .trajectory import Trajectory
@@ -243,7 +243,7 @@ def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
                     f"last recorded sample at t = {rec_t[n_rec - 1]:.6g} s. Try a smaller dt "
                     f"(now {run.dt:g}) or check the forces and parameters.")
             elif status == K.STALLED:
-                raise SimulationError(
+                raise StalledError(
                     f"{run.scene.name}: more than {K.MAX_EVENTS} contact events in the step at "
                     f"t = {i * run.dt:.6g} s; the contacts may be wedged. Try method='naive' "
                     f"or a different start.")

@@ -4,7 +4,7 @@ kernels, list scenes.
 Mistakes that are the user's (a bad scene, a missing file, a bad ``--set`` or
 option value) print one ``jackbox: error: ...`` line and exit with status 2;
 nothing is written. A run that goes wrong (the state turns non-finite) exits
-with status 1. Pictures are made by :mod:`jackbox.plots` (Matplotlib) and
+with status 1; a study with members that did not complete, 3 (see EXIT_CODES). Pictures are made by :mod:`jackbox.plots` (Matplotlib) and
 :mod:`jackbox.animate` (Plotly), imported only when a command draws.
 """
 
@@ -21,7 +21,7 @@ import warnings
 from pathlib import Path
 
 from . import __version__
-from .errors import CacheWarning, JackboxError, NonFiniteStateError
+from .errors import CacheWarning, JackboxError, RunStoppedError
 
 EPILOG = """\
 examples:
@@ -38,7 +38,17 @@ examples:
   jackbox build                        regenerate generated/ for the built-in scenes
   jackbox scenes                       list the built-in scenes
   jackbox cache                        where compiled code is cached, its size; jackbox cache clear
+
+exit status:
+  0    done
+  1    a run stopped: its state became non-finite, or its contacts stalled
+  2    a mistake in the command, the scene or an option (one "jackbox: error:" line; nothing written)
+  3    ensemble or chaos: some members did not complete (counted in the summary; their
+       results are NaN in the .npz)
+  130  interrupted (Ctrl-C); 143 terminated (SIGTERM): files being written are removed
 """
+#: a study with members that did not complete (their results are NaN)
+EXIT_INCOMPLETE = 3
 
 
 class _Parser(argparse.ArgumentParser):
@@ -61,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
             return args.func(args)
     except JackboxError as exc:
         print(f"jackbox: error: {exc}", file=sys.stderr)
-        return 1 if isinstance(exc, NonFiniteStateError) else 2
+        return 1 if isinstance(exc, RunStoppedError) else 2
     except OSError as exc:
         where = f" {exc.filename}" if exc.filename else ""
         print(f"jackbox: error:{where}: {exc.strerror or exc}", file=sys.stderr)
@@ -321,6 +331,15 @@ def _study_kwargs(args) -> dict:
             "progress": not args.quiet, "log": _say(args)}
 
 
+def _study_status(completed) -> int:
+    """Exit status of a study: 3 when any member did not complete (it is said in the summary)."""
+    if completed.all():
+        return 0
+    print(f"jackbox: {int((~completed).sum())} of {len(completed)} members did not complete "
+          f"(exit status {EXIT_INCOMPLETE})", file=sys.stderr)
+    return EXIT_INCOMPLETE
+
+
 def _cores() -> int:
     import os
 
@@ -338,7 +357,7 @@ def cmd_ensemble(args) -> int:
     if not args.quiet:
         print(result.summary())
         print(f"wrote      {path}")
-    return 0
+    return _study_status(result.completed)
 
 
 def cmd_chaos(args) -> int:
@@ -355,7 +374,7 @@ def cmd_chaos(args) -> int:
         print(study.summary())
         for path in written:
             print(f"wrote      {path}")
-    return 0
+    return _study_status(study.completed)
 
 
 def _number(text: str, ok, what: str) -> float:

@@ -161,10 +161,15 @@ def run_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray
     TOL = _tolerances(spec, kernel, P)
     _check_starts(spec, kernel, Q0, P, start)
     m, S = stop - start, len(spec.sample_steps)
-    samp_q, samp_qd = np.zeros((m, S, 6)), np.zeros((m, S, 6))
+    # samples a member never reaches stay NaN (the kernel writes the ones it reaches)
+    samp_q, samp_qd = np.full((m, S, 6), np.nan), np.full((m, S, 6), np.nan)
     fin_q, fin_qd, fin = np.zeros((m, 6)), np.zeros((m, 6)), np.zeros((m, 5))
     kernel.run_members(Q0, QD0, P, TOL, spec.dt, spec.n_steps, np.asarray(spec.sample_steps, np.int64),
                        samp_q, samp_qd, fin_q, fin_qd, fin)
+    # a member that stopped early has no final state: NaN, not its last sample
+    # (the step it reached is kept in `steps`)
+    lost = fin[:, 3] != K.DONE
+    fin_q[lost], fin_qd[lost], fin[lost, 0] = np.nan, np.nan, np.nan
     return {"q": fin_q, "qd": fin_qd, "energy": fin[:, 0], "impacts": fin[:, 1].astype(np.int64),
             "first_impact_t": fin[:, 2], "status": fin[:, 3].astype(np.int64),
             "steps": fin[:, 4].astype(np.int64), "samples_q": samp_q, "samples_qd": samp_qd,
@@ -199,14 +204,14 @@ class Ensemble:
     """The result of :func:`ensemble`: one row per member."""
 
     spec: EnsembleSpec
-    q: np.ndarray                 #: (n, 6) final coordinates (a prescribed box's from its motion)
-    qd: np.ndarray                #: (n, 6) final rates
-    energy: np.ndarray            #: (n,) final energy
+    q: np.ndarray                 #: (n, 6) final coordinates (a prescribed box's from its motion); NaN: not completed
+    qd: np.ndarray                #: (n, 6) final rates (NaN: not completed)
+    energy: np.ndarray            #: (n,) final energy (NaN: not completed)
     impacts: np.ndarray           #: (n,) contact impulses
     first_impact_t: np.ndarray    #: (n,) time of the first impulse (NaN: none)
     status: np.ndarray            #: (n,) 0 done, 2 non-finite, 3 stalled
-    steps: np.ndarray             #: (n,) steps completed
-    samples_q: np.ndarray         #: (n, S, 6) state at spec.sample_times
+    steps: np.ndarray             #: (n,) steps completed (t_reached = steps * dt)
+    samples_q: np.ndarray         #: (n, S, 6) state at spec.sample_times (NaN: not reached)
     samples_qd: np.ndarray
     q0: np.ndarray                #: (n, DOF) start coordinates of the integrated DOFs
     qd0: np.ndarray
@@ -220,6 +225,20 @@ class Ensemble:
     @property
     def sample_times(self) -> np.ndarray:
         return self.spec.sample_times
+
+    @property
+    def completed(self) -> np.ndarray:
+        """(n,) True for the members that reached t_end."""
+        return self.status == K.DONE
+
+    @property
+    def t_reached(self) -> np.ndarray:
+        """(n,) the time each member reached (t_end for the completed ones)."""
+        return self.steps * self.spec.dt
+
+    def __repr__(self) -> str:
+        return (f"<Ensemble {self.spec.scene.name}: {self.n} members over {self.spec.t_end:g} s, "
+                f"{_outcome(self.status)}>")
 
     def trajectory(self, i: int, record_every: int = 1):
         """Member i in full (the same kernel, the same numbers), as a Trajectory."""
@@ -240,9 +259,9 @@ class Ensemble:
         if hit.any():
             lines.append(f"  first impulse: {hit.sum()} members, median t = {np.median(self.first_impact_t[hit]):.4g} s")
         if not ok.all():
-            lines.append(f"  {np.sum(~ok)} members stopped early: "
-                         + ", ".join(f"{np.sum(self.status == s)} {STATUS_NAMES.get(s, s)}"
-                                     for s in np.unique(self.status[~ok])))
+            lines.append(f"  NOT COMPLETED: {_lost(self.status)}, between t = {self.t_reached[~ok].min():.4g} "
+                         f"and {self.t_reached[~ok].max():.4g} s; their final states and the samples they "
+                         f"never reached are NaN (.completed, .t_reached)")
         return "\n".join(lines)
 
     def save(self, path) -> Path:
@@ -279,10 +298,21 @@ class ChaosStudy:
         value = np.nansum(self.stretch, axis=1) / self.spec.t_end
         return np.where(done, value, np.nan)
 
+    @property
+    def completed(self) -> np.ndarray:
+        """(n,) True for the members whose twins both reached t_end."""
+        return self.status == K.DONE
+
+    def __repr__(self) -> str:
+        return (f"<ChaosStudy {self.spec.scene.name}: {len(self.stretch)} twin pairs over "
+                f"{self.spec.t_end:g} s, {_outcome(self.status)}>")
+
     def summary(self) -> str:
         f = self.ftle[np.isfinite(self.ftle)]
         lines = [f"{self.spec.scene.name}: {len(self.stretch)} twin pairs over {self.spec.t_end:g} s, "
                  f"d0 = {self.spec.d0:g}, renormalised every {self.spec.renorm_steps * self.spec.dt:g} s"]
+        if not self.completed.all():
+            lines.append(f"  NOT COMPLETED: {_lost(self.status)}; their FTLE is NaN and left out below")
         if len(f):
             lo, med, hi = np.percentile(f, [10, 50, 90])
             lines.append(f"  FTLE: mean {f.mean():.4g} 1/s, std {f.std(ddof=1) if len(f) > 1 else 0.0:.3g}, "
@@ -468,6 +498,18 @@ def _param_slots(scene: Scene, name: str) -> list[int]:
         raise SimulationError(f"sweep: unknown parameter {name!r} (parameters: restitution, "
                               f"{', '.join(scene.param_names)})")
     return [scene.param_names.index(name)]
+
+
+def _lost(status: np.ndarray) -> str:
+    """How many members did not complete, by status: '3 of 400 members (2 stalled, 1 non-finite)'."""
+    bad = status != K.DONE
+    kinds = ", ".join(f"{np.sum(status == s)} {STATUS_NAMES.get(int(s), s)}" for s in np.unique(status[bad]))
+    return f"{bad.sum()} of {len(status)} members ({kinds})"
+
+
+def _outcome(status: np.ndarray) -> str:
+    done = int(np.sum(status == K.DONE))
+    return f"all {done} completed" if done == len(status) else f"{done} completed, NOT COMPLETED: {_lost(status)}"
 
 
 def _is_number(x) -> bool:

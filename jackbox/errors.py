@@ -18,8 +18,16 @@ class SimulationError(JackboxError):
     """A run that cannot go on (non-finite state, bad arguments)."""
 
 
-class NonFiniteStateError(SimulationError):
+class RunStoppedError(SimulationError):
+    """A run that started and could not finish (CLI exit status 1)."""
+
+
+class NonFiniteStateError(RunStoppedError):
     """The state became NaN or infinite during a run (CLI exit status 1)."""
+
+
+class StalledError(RunStoppedError):
+    """The contacts made no progress within a step (CLI exit status 1)."""
 
 
 class CacheWarning(UserWarning):

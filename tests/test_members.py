@@ -1,0 +1,87 @@
+"""Honest member results: an ensemble member that stops before t_end has no final
+state (NaN), no samples past where it stopped (NaN), its time reached kept apart,
+and every summary counts it; the CLI exits 3.
+
+The members that stop here are the known stall of the exact method (a box thrown
+spinning at 15 rad/s, e = 0.5: the jack is flung into a box corner, about 1 s in).
+When that stall is fixed ("Contact that never gives up"), these tests need another
+member that cannot finish (a state that turns non-finite).
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+import jackbox
+from jackbox.ensemble import chaos, ensemble
+from jackbox.kernel import DONE, STALLED
+
+from .conftest import run_cli
+
+T_END = 1.2
+SAMPLES = [0.5, 1.15]
+#: drop thrown spinning; e from 0.5 (stalls near t = 1 s) to 1.0 (completes)
+SPIN = {"initial.qd": [0, 0, 15.0, 0, 0, 0]}
+
+
+@pytest.fixture(scope="module")
+def spun():
+    scene = jackbox.load_scene("drop", SPIN)
+    return scene, ensemble(scene, 3, sweep={"restitution": (0.5, 1.0)}, t_end=T_END, samples=SAMPLES)
+
+
+def test_a_member_that_stops_early_has_no_final_state_and_no_unreached_samples(spun):
+    scene, ens = spun
+    lost = ~ens.completed
+    assert lost.any() and ens.completed.any(), ens.status     # a mix: the check below bites both ways
+    assert set(ens.status[lost]) == {STALLED} and set(ens.status[~lost]) == {DONE}
+    assert np.all(np.isnan(ens.q[lost])) and np.all(np.isnan(ens.qd[lost])) and np.all(np.isnan(ens.energy[lost]))
+    assert np.all(np.isfinite(ens.q[~lost])) and np.all(np.isfinite(ens.energy[~lost]))
+    assert np.all(ens.t_reached[lost] < T_END) and np.all(ens.t_reached[~lost] == pytest.approx(T_END))
+    reached = ens.sample_times[None, :] <= ens.t_reached[:, None]
+    assert np.all(np.isfinite(ens.samples_q[reached])) and np.all(np.isnan(ens.samples_q[~reached]))
+    assert (~reached).any()
+    # what a member did reach is the run's own: the same numbers as jackbox.simulate up to there
+    i = int(np.flatnonzero(lost)[0])
+    with pytest.raises(jackbox.StalledError, match=re.escape(f"t = {ens.t_reached[i]:.6g} s")):
+        ens.trajectory(i)
+    j = int(np.flatnonzero(~lost)[0])
+    np.testing.assert_array_equal(ens.trajectory(j).q[-1], ens.q[j])
+    # a mean that forgets to filter is NaN, not a number that mixes lost members in
+    assert np.isnan(ens.q[:, 1].mean()) and np.isfinite(ens.q[ens.completed, 1].mean())
+
+
+def test_summaries_say_how_many_members_did_not_complete(spun):
+    _, ens = spun
+    k = int((~ens.completed).sum())
+    assert f"NOT COMPLETED: {k} of 3 members ({k} stalled)" in ens.summary()
+    assert f"NOT COMPLETED: {k} of 3 members ({k} stalled)" in repr(ens)
+    assert repr(ens).startswith("<Ensemble drop: 3 members over 1.2 s, ")
+
+
+def test_the_cli_exits_3_when_members_did_not_complete(spun, tmp_path, capsys):
+    _, ens = spun
+    status, out, err = run_cli(capsys, "ensemble", "drop", "--n", "3", "--set", "initial.qd=[0, 0, 15.0, 0, 0, 0]",
+                               "--sweep", "restitution=0.5:1.0", "--t-end", str(T_END), "--samples", "0.5", "1.15",
+                               "--out", str(tmp_path), "-q")
+    k = int((~ens.completed).sum())
+    assert status == 3
+    assert err.strip().splitlines() == [f"jackbox: {k} of 3 members did not complete (exit status 3)"]
+    with np.load(tmp_path / "ensemble.npz") as saved:
+        np.testing.assert_array_equal(saved["q"], ens.q)              # NaN where the API has NaN
+        np.testing.assert_array_equal(saved["samples_q"], ens.samples_q)
+        np.testing.assert_array_equal(saved["status"], ens.status)
+    status, out, _ = run_cli(capsys, "--help")
+    assert "exit status:" in out and "3    ensemble or chaos: some members did not complete" in out
+
+
+def test_a_chaos_study_counts_its_lost_members():
+    scene = jackbox.load_scene("drop", SPIN)
+    study = chaos(scene, 2, params={"e": 0.5, "e_ground": 0.5}, t_end=T_END, renorm=0.1)
+    assert not study.completed.any()
+    assert np.all(np.isnan(study.ftle))
+    assert "NOT COMPLETED: 2 of 2 members (2 stalled)" in study.summary()
+    assert "NOT COMPLETED: 2 of 2 members (2 stalled)" in repr(study)
