@@ -343,6 +343,11 @@ def ensemble(scene, n: int, perturb=None, params=None, t_end=None, dt=None, seed
     the same bit for bit whichever way the members are split.
     """
     spec = plan(scene, n, perturb, params, sweep, t_end, dt, seed, grid, samples)
+    # what the study will hold once every member is back: states, samples, starts, params
+    S, dof = len(spec.sample_steps), len(spec.scene.dof_names)
+    per_member = 8 * (12 * S + 12 + 5 + 2 * dof + len(spec.scene.param_names))
+    api.check_memory(spec.n * per_member, f"{spec.n:,} members with {S} samples each",
+                     "fewer members (n, --n) or fewer samples (--samples)")
     parts, meta = _execute(run_chunk, spec, chunk, threads, scheduler, dask_local, progress, log)
     return Ensemble(spec=spec, meta=meta, **parts)
 
@@ -372,6 +377,9 @@ def chaos(scene, n: int, d0: float = 1e-8, renorm: float | None = None, perturb=
     if not 1 <= renorm_steps <= spec.n_steps:
         raise SimulationError(f"renorm must be between dt ({spec.dt:g} s) and t_end ({spec.t_end:g} s), got {renorm}")
     spec = dataclasses.replace(spec, renorm_steps=int(renorm_steps), d0=float(d0))
+    intervals = -(-spec.n_steps // spec.renorm_steps)
+    api.check_memory(spec.n * 8 * (intervals + 3), f"{spec.n:,} twin pairs logging {intervals:,} stretches each",
+                     "fewer members (n, --n) or a longer renormalisation interval (renorm, --renorm)")
     parts, meta = _execute(run_chaos_chunk, spec, chunk, threads, scheduler, dask_local, progress, log,
                            steps_per_member=2 * spec.n_steps)
     k = parts["stretch"].shape[1]

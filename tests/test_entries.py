@@ -137,3 +137,14 @@ def test_studies_refuse_bad_arguments_in_one_line(kw, words, monkeypatch):
 
 def _no_kernel(*args, **kwargs):
     raise AssertionError("a refused run must not reach the kernel")
+
+
+@pytest.mark.parametrize("study, kw, words", [
+    (ensemble, {"samples": [0.1 * k for k in range(1, 6)]}, "members with 5 samples each needs"),
+    (chaos, {"renorm": 0.001}, "twin pairs logging 500 stretches each needs"),
+])
+def test_a_study_too_large_for_memory_is_refused_before_running(study, kw, words, monkeypatch):
+    monkeypatch.setattr(jackbox.loader, "kernel_for", _no_kernel)
+    monkeypatch.setattr(jackbox.api, "available_memory", lambda: 10**6)      # 1 MB free
+    with pytest.raises(SimulationError, match=re.escape(words)):
+        study("drop", 10**5, t_end=0.5, **kw)
