@@ -53,8 +53,8 @@ _loaded: dict[str, ModuleType] = {}
 _intact: dict[tuple, bool] = {}
 #: kernel modules whose Numba cache files were checked against their manifest in this process
 _verified: set[str] = set()
-#: cache folders found unwritable in this process -> the temporary folder used instead
-_fallback: dict[str, Path] = {}
+#: configured cache folder -> the folder used: itself, or a temporary one where it cannot be written
+_folders: dict[str, Path] = {}
 #: (cache folder, model file, its and the kernel's inode, mtime and size) -> module
 _stamped: dict[tuple, ModuleType] = {}
 
@@ -72,16 +72,13 @@ def cache_dir() -> Path:
     temporary folder for this process (compiled code is then not kept; one warning)."""
     folder = configured_cache_dir()
     key = str(folder)
-    if key in _fallback:
-        return _fallback[key]
-    if key not in _writable:
-        _writable[key] = _can_write(folder)
-        if not _writable[key]:
-            _fallback[key] = Path(tempfile.mkdtemp(prefix="jackbox-cache-"))
-            _warn(f"the cache folder {folder} cannot be written: compiling into {_fallback[key]} "
+    if key not in _folders:
+        _folders[key] = folder
+        if not _can_write(folder):
+            _folders[key] = Path(tempfile.mkdtemp(prefix="jackbox-cache-"))
+            _warn(f"the cache folder {folder} cannot be written: compiling into {_folders[key]} "
                   f"for this process only (set JACKBOX_CACHE_DIR to a writable folder to keep it)")
-            return _fallback[key]
-    return folder
+    return _folders[key]
 
 
 def _can_write(folder: Path) -> bool:
@@ -92,8 +89,6 @@ def _can_write(folder: Path) -> bool:
     except OSError:
         return False
 
-
-_writable: dict[str, bool] = {}
 
 
 def recorded_hash(path: Path) -> str | None:
@@ -250,10 +245,11 @@ def compile_kernel(module: ModuleType, method: str | None = None, n_rec: int = 2
     if module.__file__ not in _verified:
         _verified.add(module.__file__)
         _check_manifest(module)
+    cached = bool(_numba_files(module))
     try:
         result = _compile(module, method, n_rec, t0)
     except Exception as exc:       # a damaged cache entry that slipped past the manifest
-        if not _numba_files(module):
+        if not cached:             # nothing was loaded: a failure of its own
             raise
         _warn(f"loading the compiled {method or 'exact and naive'} loop of {Path(module.__file__).name} "
               f"from the cache failed ({type(exc).__name__}: {str(exc)[:120]}): compiling it again")

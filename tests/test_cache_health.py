@@ -30,7 +30,7 @@ def fresh_cache(tmp_path, monkeypatch):
 
 def _forget(monkeypatch):
     """A new process, as far as the loader knows: nothing imported, checked or stamped."""
-    for table in ("_loaded", "_stamped", "_intact", "_writable", "_fallback"):
+    for table in ("_loaded", "_stamped", "_intact", "_folders"):
         monkeypatch.setattr(loader, table, {})
     monkeypatch.setattr(loader, "_verified", set())
 
