@@ -254,8 +254,10 @@ class Ensemble:
                  f"(dt {self.spec.dt:g}, {self.spec.n_steps} steps each)"]
         if rate:
             lines.append(f"  {rate:.3g} member-steps/s on {_where(self.meta)}, {self.meta['run_seconds']:.2f} s")
-        lines.append(f"  impulses per member: median {np.median(self.impacts):.0f}, "
-                     f"range {self.impacts.min()}..{self.impacts.max()}")
+        if ok.any():    # over the members that completed: a stopped one's count is partial
+            done = self.impacts[ok]
+            lines.append(f"  impulses per member{'' if ok.all() else ' (completed)'}: median "
+                         f"{np.median(done):.0f}, range {done.min()}..{done.max()}")
         if hit.any():
             lines.append(f"  first impulse: {hit.sum()} members, median t = {np.median(self.first_impact_t[hit]):.4g} s")
         if not ok.all():

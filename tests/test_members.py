@@ -58,6 +58,9 @@ def test_a_member_that_stops_early_has_no_final_state_and_no_unreached_samples(s
 def test_summaries_say_how_many_members_did_not_complete(spun):
     _, ens = spun
     k = int((~ens.completed).sum())
+    done = ens.impacts[ens.completed]       # a stopped member's count is partial: left out
+    assert (f"impulses per member (completed): median {np.median(done):.0f}, "
+            f"range {done.min()}..{done.max()}") in ens.summary()
     assert f"NOT COMPLETED: {k} of 3 members ({k} stalled)" in ens.summary()
     assert f"NOT COMPLETED: {k} of 3 members ({k} stalled)" in repr(ens)
     assert repr(ens).startswith("<Ensemble drop: 3 members over 1.2 s, ")
