@@ -292,7 +292,7 @@ def simulate(scene, budget=EVENT_BUDGET, reject_stall=True, **kw):
             _rejections.runs += 1
         return jackbox.simulate(scene, **kw)
     except (jackbox.SimulationError, OverBudget) as exc:
-        stalled = isinstance(exc, OverBudget) or "contact events in the step" in str(exc)
+        stalled = isinstance(exc, (OverBudget, jackbox.StalledError))
         if reject_stall and KNOWN_STALL and stalled:
             _rejections.reject(scene, kw.get("dt", scene.dt), exc)
             reject()
