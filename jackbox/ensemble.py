@@ -38,7 +38,7 @@ from . import kernel as K
 from .errors import SimulationError
 from .fileio import write_atomic
 from .progress import progress_bar
-from .scene import COORDS, RATES, Scene, check_param, load_scene
+from .scene import COORDS, RATES, Scene, check_param, is_number, load_scene
 
 #: members per kernel call when the progress bar is on (each call is parallel inside)
 CHUNK_MEMBERS = 1024
@@ -91,7 +91,7 @@ def plan(scene, n: int, perturb: dict[str, float] | None = None, params: dict[st
             raise SimulationError(f"perturb: unknown coordinate {name!r} (one of {', '.join(names)})")
         if name not in movable:
             raise SimulationError(f"perturb: {name!r} is not a degree of freedom: the box's motion is prescribed")
-        if not (_is_number(scale) and math.isfinite(scale) and scale >= 0):
+        if not (is_number(scale) and math.isfinite(scale) and scale >= 0):
             raise SimulationError(f"perturb: the size for {name!r} must be a finite number >= 0, got {scale!r}")
         pert.append((name, float(scale)))
     if grid and pert and _side(n, len(pert)) is None:
@@ -370,9 +370,9 @@ def chaos(scene, n: int, d0: float = 1e-8, renorm: float | None = None, perturb=
     shows as a jump of the separation; a small d0 keeps that window short.
     """
     spec = plan(scene, n, perturb, params, sweep, t_end, dt, seed, grid, None)
-    if not (_is_number(d0) and math.isfinite(d0) and 0 < d0 < 1e-2):
+    if not (is_number(d0) and math.isfinite(d0) and 0 < d0 < 1e-2):
         raise SimulationError(f"d0 must be a small positive number (below 1e-2), got {d0!r}")
-    if renorm is not None and not (_is_number(renorm) and math.isfinite(renorm)):
+    if renorm is not None and not (is_number(renorm) and math.isfinite(renorm)):
         raise SimulationError(f"renorm must be a time between dt ({spec.dt:g} s) and t_end "
                               f"({spec.t_end:g} s), got {renorm!r}")
     renorm_steps = 100 if renorm is None else round(float(renorm) / spec.dt)
@@ -520,10 +520,6 @@ def _lost(status: np.ndarray) -> str:
 def _outcome(status: np.ndarray) -> str:
     done = int(np.sum(status == K.DONE))
     return f"all {done} completed" if done == len(status) else f"{done} completed, NOT COMPLETED: {_lost(status)}"
-
-
-def _is_number(x) -> bool:
-    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool)
 
 
 def _side(n: int, k: int) -> int | None:

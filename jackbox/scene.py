@@ -558,7 +558,7 @@ def check_param(name: str, value: Any, where: str) -> float:
     """
     key, low, high, low_open = SLOT_RULES.get(name, (f"params.{name}", -math.inf, math.inf, False))
     what = f"{name} ({key})" if name in SLOT_RULES else name
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+    if not is_number(value):
         raise SceneError(where, what, f"must be a number, got {_kind(value)}")
     x = float(value)
     problem = _range_problem(x, low, high, low_open)
@@ -579,6 +579,11 @@ def _range_problem(x: float, low: float, high: float, low_open: bool) -> str | N
     return None
 
 
+def is_number(value: Any) -> bool:
+    """A real number as a value (int, float or numpy's), not a bool or a string."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+
+
 def param_array(scene: "Scene", values: dict[str, Any], where: str) -> np.ndarray:
     """The scene's parameter array with `values` set, each checked as a scene file's would be.
 
@@ -587,9 +592,7 @@ def param_array(scene: "Scene", values: dict[str, Any], where: str) -> np.ndarra
     new values put inside a wall is refused, naming `where`.
     """
     p = scene.param_values.copy()
-    for name, value in values.items():
-        if name not in scene.param_names:
-            raise SceneError(where, name, f"unknown parameter (parameters: {', '.join(scene.param_names)})")
+    for name, value in values.items():     # names are the scene's (the caller checked them)
         p[scene.param_names.index(name)] = check_param(name, value, where)
     if not np.array_equal(p, scene.param_values):
         check_start(scene, p, where)
