@@ -259,8 +259,7 @@ class Kernel:
     :mod:`jackbox.engine.loop` and :mod:`jackbox.engine.members`) and pass the
     model record first. The model's constants (``N_DOF``, ``N_CONTACT`` ...)
     and plain functions (``phi``, ``accel`` ... for Python callers) are
-    attributes, and so are the engine's (``DONE``, ``T_GAP`` ...); :meth:`jit`
-    gives a Numba-compiled model function.
+    attributes; :meth:`jit` gives a Numba-compiled one.
     """
 
     def __init__(self, module: ModuleType):
@@ -276,9 +275,7 @@ class Kernel:
     def __getattr__(self, name):
         if name.startswith("__"):
             raise AttributeError(name)
-        if hasattr(self.module, name):
-            return getattr(self.module, name)
-        return getattr(engine, name)        # status codes, event kinds, tolerance slots
+        return getattr(self.module, name)
 
     def jit(self, name: str):
         """The model function `name` compiled by Numba (for Python callers: tests, benchmarks)."""
@@ -427,8 +424,7 @@ def is_cached(kernel: Kernel, method: str) -> bool:
         return True
     folder = engine.cache.engine_cache_path()
     loop_fn = engine.LOOPS[LOOP[method]][0]
-    return folder is not None and all(any(folder.glob(f"*.{name}-*.nbi"))
-                                      for name in (ENTRY[method][0], loop_fn))
+    return folder is not None and all(any(folder.glob(f"*.{name}-*.nbi")) for name in (ENTRY[method][0], loop_fn))
 
 
 def _numba_files(path: Path) -> list[Path]:
