@@ -19,7 +19,7 @@ import numba
 import numpy as np
 
 from . import __version__, loader
-from . import kernel as K
+from . import engine as K
 from .errors import NonFiniteStateError, SimulationError, StalledError
 from .progress import progress_bar
 from .scene import Scene, load_scene, param_array
@@ -140,22 +140,22 @@ def tolerances(run: Run, kernel) -> np.ndarray:
         n = len(scene.points)
         r_jack = max(math.hypot(P[f"jack_x{i}"], P[f"jack_y{i}"]) for i in range(n))
     r_box = math.sqrt(2.0) * (L + w)
-    tol = np.zeros(kernel.T_SPEED + kernel.N_DOF)
-    tol[kernel.T_GAP] = GAP_TOL * L
-    tol[kernel.T_EVENT] = EVENT_TOL * L
-    tol[kernel.T_VREST] = REST_TOL * v_scale
-    tol[kernel.T_WALL] = L
-    tol[kernel.T_RJACK] = r_jack
-    tol[kernel.T_RBOX] = r_box
+    tol = np.zeros(K.T_SPEED + kernel.N_DOF)
+    tol[K.T_GAP] = GAP_TOL * L
+    tol[K.T_EVENT] = EVENT_TOL * L
+    tol[K.T_VREST] = REST_TOL * v_scale
+    tol[K.T_WALL] = L
+    tol[K.T_RJACK] = r_jack
+    tol[K.T_RBOX] = r_box
     reach = [1.0, 1.0, 1.5 * r_jack]               # x, y, theta of the jack
     if scene.prescribed:
         # sample the box's motion densely; twice the largest speed seen bounds it
         samples = min(max(2001, 4 * run.n_steps + 1), 20001)
         speed = kernel.box_speed_bound(p, run.n_steps * run.dt, samples, r_box)
-        tol[kernel.T_BOXV] = 2.0 * speed
+        tol[K.T_BOXV] = 2.0 * speed
     else:
         reach = [1.0, 1.0, 1.5 * r_box] + reach
-    tol[kernel.T_SPEED:] = reach
+    tol[K.T_SPEED:] = reach
     return tol
 
 

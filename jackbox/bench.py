@@ -168,9 +168,9 @@ def bench_scene(name: str, repeat: int, size: dict, cold: bool = True) -> dict:
 
     _say(f"{name}: loading the kernels (default, and with BROAD_PHASE = False)")
     model_file = loader.ensure_model(scene)
-    text = loader.KERNEL_SOURCE.read_text()      # read once: both variants from the same source
+    text = loader.FLIGHT_SOURCE.read_text()      # read once: both variants from the same source
     if text.count(TOGGLE) != 1:
-        raise RuntimeError(f"{loader.KERNEL_SOURCE} must set {TOGGLE!r} exactly once for the benchmark "
+        raise RuntimeError(f"{loader.FLIGHT_SOURCE} must set {TOGGLE!r} exactly once for the benchmark "
                            f"to build its every-gap-every-step variant")
     kernel = loader.load_kernel(model_file, text)
     loader.compile_kernel(kernel)

@@ -37,7 +37,7 @@ from contextlib import contextmanager
 import numba
 import numpy as np
 
-from . import loader
+from . import engine, loader
 from .errors import SimulationError
 from .progress import progress_bar
 
@@ -238,11 +238,15 @@ def _dispatchers():
         for value in vars(module).values():
             if isinstance(value, numba.core.dispatcher.Dispatcher):
                 seen[id(value)] = value
+    for name in engine.ENTRIES:
+        fn = engine._dispatcher(name)
+        seen[id(fn)] = fn
     return seen.values()
 
 
 def _kernel_state() -> tuple[int, int]:
-    return len(loader._loaded), sum(len(d.signatures) for d in _dispatchers())
+    """(binding modules loaded, compiled signatures and engine function values) in this process."""
+    return len(loader._loaded), sum(len(d.signatures) for d in _dispatchers()) + len(engine._loops)
 
 
 def _worker_stats() -> dict:

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__, api, loader
-from . import kernel as K
+from . import engine as K
 from .errors import SimulationError
 from .fileio import write_atomic
 from .progress import progress_bar

@@ -1,6 +1,6 @@
-"""Find (or build) the generated model of a scene and assemble its compiled kernel.
+"""Find (or build) the generated model of a scene and bind it to the compiled engine.
 
-Two content-addressed steps keep compiled code from ever going stale:
+Three content-addressed pieces keep compiled code from ever going stale:
 
 1. The *model module*: a committed ``generated/<name>.py`` whose recorded
    model hash is the scene's (a built-in, or any scene of the same structure:
@@ -8,14 +8,19 @@ Two content-addressed steps keep compiled code from ever going stale:
    ``<cache>/models/<hash>.py``, generated on first use and shared by every
    scene of that structure. The hash covers the scene's structure (not its
    name) and the compiler's source.
-2. The *kernel module*: ``<cache>/kernels/<stem>_<key>.py``, the text of the
-   model module, a binding section and the text of :mod:`jackbox.kernel`, where
-   ``key`` hashes all of that text and Numba's version. Numba caches its machine
-   code beside that file (``cache=True``); a changed model or kernel gives a new
-   file, so old machine code is never served for new source.
+2. The *binding module*: ``<cache>/kernels/<stem>_<key>.py``, the model's text,
+   the free-flight hot path (:mod:`jackbox.engine.flight`) and a binding that
+   compiles the model's functions as ``cfunc`` values; ``key`` hashes that
+   text, the engine's digest and Numba's version. Numba caches the machine
+   code beside that file.
+3. The *engine* (:mod:`jackbox.engine`): compiled once per machine and engine
+   version for every model, cached in ``<cache>/engine/<digest>/``.
 
-The cache folder is ``$JACKBOX_CACHE_DIR``, else ``$XDG_CACHE_HOME/jackbox``,
-else ``~/.cache/jackbox``. Only building a model needs sympy.
+The runtime reaches the compiler only through :func:`ensure_model` (which
+imports :mod:`codegen.driver`, and with it sympy, only to generate a module)
+and :func:`codegen.version.model_hash`. The cache folder is
+``$JACKBOX_CACHE_DIR``, else ``$XDG_CACHE_HOME/jackbox``, else
+``~/.cache/jackbox``.
 """
 
 from __future__ import annotations
@@ -35,13 +40,17 @@ from types import ModuleType
 import numba
 import numpy as np
 
+from numba.core.errors import NumbaExperimentalFeatureWarning
+
 from codegen.version import is_sealed, model_hash
 
+from . import engine
+from .engine.flight import INLINED
 from .errors import CacheWarning
 from .fileio import write_atomic
 from .scene import Scene
 
-KERNEL_SOURCE = Path(__file__).with_name("kernel.py")
+FLIGHT_SOURCE = Path(__file__).with_name("engine") / "flight.py"
 GENERATED_DIR = Path(__file__).resolve().parent.parent / "generated"
 #: functions a model may lack; the kernel only calls them when the model has them
 OPTIONAL = {
@@ -51,12 +60,12 @@ OPTIONAL = {
 _loaded: dict[str, ModuleType] = {}
 #: (path, inode, mtime, size) -> whether the generated module there is sealed (see intact())
 _intact: dict[tuple, bool] = {}
-#: kernel modules whose Numba cache files were checked against their manifest in this process
-_verified: set[str] = set()
+#: binding modules and engine folders whose Numba cache files were checked against their manifest
+_verified: set = set()
 #: configured cache folder -> the folder used: itself, or a temporary one where it cannot be written
 _folders: dict[str, Path] = {}
-#: (cache folder, model file, its and the kernel's inode, mtime and size) -> module
-_stamped: dict[tuple, ModuleType] = {}
+#: (cache folder, model file, its and the hot path's inode, mtime and size) -> kernel
+_stamped: dict[tuple, "Kernel"] = {}
 
 
 def configured_cache_dir() -> Path:
@@ -79,6 +88,9 @@ def cache_dir() -> Path:
             _warn(f"the cache folder {folder} cannot be written: compiling into {_folders[key]} "
                   f"for this process only (set JACKBOX_CACHE_DIR to a writable folder to keep it)")
     return _folders[key]
+
+
+engine.cache.folder = cache_dir      # the engine's machine code goes under the same folder
 
 
 def _can_write(folder: Path) -> bool:
@@ -169,54 +181,158 @@ def intact(path: Path) -> bool:
     return _intact[stamp]
 
 
-def kernel_source(model_text: str, kernel_text: str | None = None) -> str:
-    """Text of the kernel module: the model, a binding section, then the kernel."""
-    kernel_text = KERNEL_SOURCE.read_text() if kernel_text is None else kernel_text
+def binding_source(model_text: str, flight_text: str | None = None) -> str:
+    """Text of a model's binding module: the generated model, the hot path, then the binding.
+
+    The binding compiles the model's functions as ``cfunc`` values of the
+    engine's signatures (:data:`jackbox.engine.SIGNATURES`) and the tuple
+    helpers of the hot path as inlined ``njit`` functions, all cached beside
+    the file.
+    """
+    flight_text = FLIGHT_SOURCE.read_text() if flight_text is None else flight_text
     present = _functions_of(model_text)
     absent = [name for name in OPTIONAL if name not in present]
     stubs = "".join("\n\n" + OPTIONAL[name] for name in absent)
-    binding = (
-        "\n\n# " + "-" * 77 + "\n"
-        "# Binding (jackbox.loader): the model's functions compiled by Numba, in this file,\n"
-        "# so the kernel below calls them as globals and caches with them.\n"
-        "# " + "-" * 77 + "\n"
-        "from numba import njit as _njit\n"
-        + stubs
-        + "\n\n"
-        + "".join(f"{name} = _njit(cache=True)({name})\n" for name in (*present, *absent))
-        + "\n# " + "-" * 77 + "\n# Kernel (jackbox/kernel.py)\n# " + "-" * 77 + "\n"
+    tuples = [name for name in present if name.endswith("_s") or name == "tuple_of"]
+    rule = "# " + "-" * 77 + "\n"
+    return (
+        model_text + stubs + "\n\n" + rule
+        + "# The free-flight hot path (jackbox/engine/flight.py), compiled with this model\n" + rule
+        + flight_text + "\n\n" + rule
+        + "# Binding (jackbox.loader): the model's functions as the engine's function values\n" + rule
+        + "from numba import cfunc as _cfunc, config as _config, njit as _njit\n"
+        + "from jackbox.engine import SIGNATURES as _SIGNATURES\n\n"
+        + "".join(f"{name} = _njit(cache=True)({name})\n" for name in tuples)
+        + "".join(f"{name} = _njit(cache=True, inline=\"always\")({name})\n" for name in INLINED)
+        + "\n#: what the engine calls: cfunc values (plain functions when Numba's JIT is off)\n"
+        + "COMPILED = {name: globals()[name] if _config.DISABLE_JIT else\n"
+        + "            _cfunc(sig, cache=True)(globals()[name]) for name, sig in _SIGNATURES.items()}\n"
     )
-    return model_text + binding + kernel_text
 
 
-def load_kernel(model_file: Path, kernel_text: str | None = None) -> ModuleType:
-    """Import (assembling on first use) the kernel module for a generated model."""
-    # a second call with unchanged files costs two stat()s, not reading and hashing them
-    stamp = None
-    if kernel_text is None:
-        stamp = (str(cache_dir()), str(model_file), *_stat(model_file), *_stat(KERNEL_SOURCE))
-        if stamp in _stamped:
-            return _stamped[stamp]
-    text = kernel_source(model_file.read_text(), kernel_text)
-    key = hashlib.sha256((numba.__version__ + "\0" + text).encode()).hexdigest()[:16]
+def load_binding(model_file: Path, flight_text: str | None = None) -> ModuleType:
+    """Import (writing it on first use) the binding module of a generated model."""
+    text = binding_source(model_file.read_text(), flight_text)
+    key = hashlib.sha256((numba.__version__ + "\0" + engine.cache.DIGEST + "\0" + text).encode()).hexdigest()[:16]
     if key in _loaded:
-        if stamp is not None:
-            _stamped[stamp] = _loaded[key]
         return _loaded[key]
     # committed models are <name>.py, cached ones <model hash>.py
-    stem = model_file.stem
-    path = cache_dir() / "kernels" / f"{_ident(stem)}_{key}.py"
+    path = cache_dir() / "kernels" / f"{_ident(model_file.stem)}_{key}.py"
     if not path.exists() or path.read_text() != text:
         write_atomic(path, text)
-    name = f"jackbox_kernel_{_ident(stem)}_{key}"
+    if path not in _verified:
+        _verified.add(path)
+        _check_manifest(_numba_files(path), _manifest(path), path.name)
+    name = f"jackbox_model_{_ident(model_file.stem)}_{key}"
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
-    spec.loader.exec_module(module)
+    cached = bool(_numba_files(path))
+    try:
+        _import(spec, module)
+    except Exception as exc:       # a damaged cache entry that slipped past the manifest
+        if not cached:             # nothing was loaded: a failure of its own
+            raise
+        _warn(f"loading the compiled functions of {path.name} from the cache failed "
+              f"({type(exc).__name__}: {str(exc)[:120]}): compiling them again")
+        _clear(_numba_files(path), _manifest(path))
+        _import(spec, module)
+    module.CACHE = "disabled"     # how the model's functions came: compiled now ("miss") or loaded
+    if not numba.config.DISABLE_JIT:
+        module.CACHE = "hit" if all(fn.cache_hits for fn in module.COMPILED.values()) else "miss"
+        if module.CACHE == "miss":
+            _write_manifest(_numba_files(path), _manifest(path))
     _loaded[key] = module
-    if stamp is not None:
-        _stamped[stamp] = module
     return module
+
+
+def _import(spec, module: ModuleType) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
+        spec.loader.exec_module(module)
+
+
+class Kernel:
+    """A model bound to the engine: its functions as one record, and the engine's entry points.
+
+    The entry points keep the positional arrays of the loops' callers (see
+    :mod:`jackbox.engine.loop` and :mod:`jackbox.engine.members`) and pass the
+    model record first. The model's constants (``N_DOF``, ``N_CONTACT`` ...)
+    and plain functions (``phi``, ``accel`` ... for Python callers) are
+    attributes; :meth:`jit` gives a Numba-compiled one.
+    """
+
+    def __init__(self, module: ModuleType):
+        self.module = module
+        self.__file__ = module.__file__
+        fns = module.COMPILED
+        self.record = engine.Model(
+            module.N_DOF, module.N_CONTACT, module.N_WALL_CONTACT, module.E_SLOT, module.E_GROUND_SLOT,
+            int(module.PRESCRIBED), int(module.HAS_GROUND), *(fns[name] for name in engine.SIGNATURES))
+        self._jitted: dict = {}
+        self._cache = module.CACHE     # reported by the first compile_kernel, "memory" after it
+
+    def __getattr__(self, name):
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(self.module, name)
+
+    def jit(self, name: str):
+        """The model function `name` compiled by Numba (for Python callers: tests, benchmarks)."""
+        if name not in self._jitted:
+            fn = getattr(self.module, name)
+            self._jitted[name] = fn if numba.config.DISABLE_JIT else numba.njit(fn)
+        return self._jitted[name]
+
+    @property
+    def cache_hit(self) -> bool:
+        """Whether every model function was loaded from Numba's cache (none compiled in this process)."""
+        return all(getattr(fn, "cache_hits", 0) for fn in self.module.COMPILED.values())
+
+    def integrate_exact(self, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every,
+                        rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, ev_kind, n_ev):
+        return engine.entry("run_exact")(
+            engine.compiled_loop("exact"), self.record, engine.stages(), q, qd, rest, p, tol, float(t0), float(dt), i_begin, i_end,
+            n_total, record_every, engine.Samples(rec_t, rec_q, rec_qd, rec_energy), n_rec,
+            engine.Events(ev_t, ev_k, ev_kind), n_ev)
+
+    def integrate(self, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every,
+                  rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, n_imp):
+        kind = np.zeros(ev_t.shape[0], np.int64)
+        return engine.entry("run_naive")(
+            engine.compiled_loop("naive"), self.record, engine.compiled_loop("step"), q, qd, p, float(t0),
+            float(dt), i_begin, i_end, n_total, record_every, engine.Samples(rec_t, rec_q, rec_qd, rec_energy), n_rec,
+            engine.Events(ev_t, ev_k, kind), n_imp)
+
+    def run_members(self, *args):
+        return engine.entry("run_members")(self.record, engine.compiled_loop("exact"), engine.stages(), *args)
+
+    def run_twin_members(self, *args):
+        return engine.entry("run_twin_members")(self.record, engine.compiled_loop("exact"), engine.stages(),
+                                                *args)
+
+    def start_gaps(self, Q0, P):
+        return engine.entry("start_gaps")(self.record, Q0, P)
+
+    def box_speed_bound(self, p, t_end, n_samples, r_box):
+        return engine.entry("box_speed_bound")(self.record, p, float(t_end), int(n_samples), float(r_box))
+
+
+def load_kernel(model_file: Path, flight_text: str | None = None) -> Kernel:
+    """The :class:`Kernel` of a generated model (its binding imported, compiling on first use)."""
+    stamp = None
+    if flight_text is None:
+        # a second call with unchanged files costs two stat()s, not reading and hashing them
+        stamp = (str(cache_dir()), str(model_file), *_stat(model_file), *_stat(FLIGHT_SOURCE))
+        if stamp in _stamped:
+            return _stamped[stamp]
+    module = load_binding(model_file, flight_text)
+    kernel = module.__dict__.get("KERNEL")
+    if kernel is None:
+        kernel = module.KERNEL = Kernel(module)
+    if stamp is not None:
+        _stamped[stamp] = kernel
+    return kernel
 
 
 def _stat(path: Path) -> tuple[int, int, int]:
@@ -224,110 +340,113 @@ def _stat(path: Path) -> tuple[int, int, int]:
     return st.st_ino, st.st_mtime_ns, st.st_size
 
 
-def kernel_for(scene: Scene, log=None) -> ModuleType:
-    """The kernel module of `scene` (model generated if needed)."""
-    return load_kernel(ensure_model(scene, log))
+def kernel_for(scene: Scene, log=None) -> Kernel:
+    """The :class:`Kernel` of `scene` (model generated and its functions compiled if needed)."""
+    path = ensure_model(scene, log)
+    if log and not numba.config.DISABLE_JIT and not _bound(path):
+        log(f"compiling the model functions of {scene.name} (first use of this structure) ...")
+    return load_kernel(path)
 
 
-def compile_kernel(module: ModuleType, method: str | None = None, n_rec: int = 2) -> dict:
-    """Make sure the kernel's machine code for `method` is ready: compiled now or loaded from cache.
+def _bound(model_file: Path) -> bool:
+    """Whether the model's binding is loaded in this process or its machine code is cached."""
+    text = binding_source(model_file.read_text())
+    key = hashlib.sha256((numba.__version__ + "\0" + engine.cache.DIGEST + "\0" + text).encode()).hexdigest()[:16]
+    path = cache_dir() / "kernels" / f"{_ident(model_file.stem)}_{key}.py"
+    return key in _loaded or any(path.parent.glob(f"__pycache__/{path.stem}.fly-*.nbi"))
+
+
+#: the engine's entry points each method needs (the first is the one to look for in the cache)
+ENTRY = {"exact": ("run_exact",), "naive": ("run_naive",),
+         "ensemble": ("run_members", "start_gaps"), "chaos": ("run_twin_members", "start_gaps")}
+#: the loop each method runs (compiled once as a function value)
+LOOP = {"exact": "exact", "naive": "naive", "ensemble": "exact", "chaos": "exact"}
+
+
+def compile_kernel(kernel: Kernel, method: str | None = None) -> dict:
+    """Make sure the engine's machine code for `method` is ready: compiled now or loaded from the cache.
 
     method: ``"exact"``, ``"naive"``, ``"ensemble"`` or ``"chaos"`` (the
-    parallel member loops) or None for the two methods. Each is compiled on
-    first use only.
-    Returns ``{"seconds": ..., "cache": "hit" | "miss" | "memory" | "disabled"}``:
-    loaded from Numba's cache, compiled now, compiled earlier in this process,
-    or not compiled at all (``NUMBA_DISABLE_JIT=1``).
+    parallel member loops) or None for the two methods. The engine is compiled
+    once per machine, for every model; the model's own functions were
+    compiled (or loaded) when its kernel was. Returns ``{"seconds": ...,
+    "cache": "hit" | "miss" | "memory" | "disabled", "model": ..., "engine":
+    ...}``: loaded from Numba's cache, compiled now, ready earlier in this
+    process, or not compiled at all (``NUMBA_DISABLE_JIT=1``); "cache" sums up
+    the model's part (reported by the first call for a kernel only) and the
+    engine's.
     """
     t0 = time.perf_counter()
     if numba.config.DISABLE_JIT:
         return {"seconds": 0.0, "cache": "disabled"}
-    if module.__file__ not in _verified:
-        _verified.add(module.__file__)
-        _check_manifest(module)
-    cached = bool(_numba_files(module))
+    model, kernel._cache = kernel._cache, "memory"
+    names = ENTRY[method] if method else ENTRY["exact"] + ENTRY["naive"]
+    loops = (LOOP[method],) if method else ("exact", "naive")
+    if kernel.PRESCRIBED:
+        names = names + ("box_speed_bound",)
+    folder = engine.cache.engine_cache_path()
+    if folder is not None and str(folder) not in _verified:
+        _verified.add(str(folder))
+        _check_manifest(engine.cache.files(), folder / "sums.json", "the engine")
+    cached = bool(engine.cache.files())
     try:
-        result = _compile(module, method, n_rec, t0)
+        result = engine.prepare(names, loops)
     except Exception as exc:       # a damaged cache entry that slipped past the manifest
-        if not cached:             # nothing was loaded: a failure of its own
+        if not cached:
             raise
-        _warn(f"loading the compiled {method or 'exact and naive'} loop of {Path(module.__file__).name} "
-              f"from the cache failed ({type(exc).__name__}: {str(exc)[:120]}): compiling it again")
-        _clear_numba_files(module)      # the dispatchers find no entry now, and compile
-        result = _compile(module, method, n_rec, t0)
-    if result["cache"] == "miss":
-        _write_manifest(module)
-    return result
+        _warn(f"loading the compiled engine ({', '.join(names)}) from the cache failed "
+              f"({type(exc).__name__}: {str(exc)[:120]}): compiling it again")
+        _clear(engine.cache.files(), folder / "sums.json")
+        _reset_engine(names, loops)
+        result = engine.prepare(names, loops)
+    if result == "miss" and folder is not None:
+        _write_manifest(engine.cache.files(), folder / "sums.json")
+    # compiled now if either part was; loaded if either was loaded; else ready in memory
+    both = {model, result}
+    cache = "miss" if "miss" in both else "hit" if "hit" in both else "memory"
+    return {"seconds": time.perf_counter() - t0, "cache": cache, "model": model, "engine": result}
 
 
-def _compile(module: ModuleType, method: str | None, n_rec: int, t0: float) -> dict:
-    wanted = {"exact": ("integrate_exact",), "naive": ("integrate",),
-              "ensemble": ("run_members", "start_gaps"), "chaos": ("run_twin_members", "start_gaps"),
-              None: ("integrate", "integrate_exact")}[method]
-    loops = [getattr(module, name) for name in wanted]
-    if all(f.signatures for f in loops):
-        return {"seconds": 0.0, "cache": "memory"}
-    n, C = module.N_DOF, module.N_CONTACT
-    p = np.zeros(module.N_PARAM)
-    rec = (np.zeros(n_rec), np.zeros((n_rec, 6)), np.zeros((n_rec, 6)), np.zeros(n_rec), 0)
-    log = (np.zeros(C + 1), np.zeros(C + 1, np.int64))
-    # zero steps from step 1: compiles without evaluating the model at p = 0
-    if "integrate" in wanted:
-        module.integrate(np.zeros(n), np.zeros(n), p, 0.0, 1.0, 1, 1, 1, 1, *rec, *log, 0)
-    if "integrate_exact" in wanted:
-        module.integrate_exact(np.zeros(n), np.zeros(n), np.zeros(C, np.int64), p,
-                               np.zeros(module.T_SPEED + n), 0.0, 1.0, 1, 1, 1, 1, *rec,
-                               *log, np.zeros(C + 1, np.int64), 0)
-        if module.PRESCRIBED:
-            module.box_motion(0.0, p, np.zeros(6))
-    if "run_members" in wanted:
-        # zero members: compiles the parallel loops without running the model
-        Q, P = np.zeros((0, n)), np.zeros((0, module.N_PARAM))
-        T = np.zeros((0, module.T_SPEED + n))
-        module.run_members(Q, Q, P, T, 1.0, 1, np.zeros(0, np.int64), np.zeros((0, 0, 6)),
-                           np.zeros((0, 0, 6)), np.zeros((0, 6)), np.zeros((0, 6)), np.zeros((0, 5)))
-    if "run_twin_members" in wanted:
-        Q, P = np.zeros((0, n)), np.zeros((0, module.N_PARAM))
-        module.run_twin_members(Q, Q, Q, Q, P, np.zeros((0, module.T_SPEED + n)), 1.0, 1, 1, np.ones(2 * n),
-                                np.zeros((0, 1)), np.zeros((0, 3)))
-    if "start_gaps" in wanted:
-        module.start_gaps(np.zeros((0, n)), np.zeros((0, module.N_PARAM)))
-    hits = sum(sum(f.stats.cache_hits.values()) for f in loops)
-    return {"seconds": time.perf_counter() - t0, "cache": "hit" if hits else "miss"}
+def _reset_engine(names, loops) -> None:
+    """Forget what a failed load left in the engine, so it compiles afresh."""
+    for name in loops:
+        engine._loops.pop(name, None)
+    for name in names:
+        fn = engine._dispatcher(name)
+        fn._can_compile = True
+        fn.overloads.clear()
 
 
-#: what compile_kernel compiles for each method (the first is the one to look for in the cache)
-ENTRY = {"exact": "integrate_exact", "naive": "integrate", "ensemble": "run_members", "chaos": "run_twin_members"}
+def is_cached(kernel: Kernel, method: str) -> bool:
+    """Whether the engine's machine code for `method` is ready (in this process or in the cache)."""
+    fn = engine._dispatcher(ENTRY[method][0])
+    if getattr(fn, "signatures", None) and LOOP[method] in engine._loops:
+        return True
+    folder = engine.cache.engine_cache_path()
+    loop_fn = engine.LOOPS[LOOP[method]][0]
+    return folder is not None and all(any(folder.glob(f"*.{name}-*.nbi")) for name in (ENTRY[method][0], loop_fn))
 
 
-def is_cached(module: ModuleType, method: str) -> bool:
-    """Whether Numba's cache beside the kernel module holds `method`'s loop (so no compile is due)."""
-    path = Path(module.__file__)
-    return any(path.parent.glob(f"__pycache__/{path.stem}.{ENTRY[method]}-*.nbi"))
-
-
-def _numba_files(module: ModuleType) -> list[Path]:
-    """Numba's cache files (index and machine code) beside a kernel module."""
-    path = Path(module.__file__)
+def _numba_files(path: Path) -> list[Path]:
+    """Numba's cache files (index and machine code) beside a binding module."""
     return sorted(path.parent.glob(f"__pycache__/{path.stem}.*.nb[ic]"))
 
 
-def _manifest(module: ModuleType) -> Path:
-    path = Path(module.__file__)
+def _manifest(path: Path) -> Path:
     return path.parent / "__pycache__" / f"{path.stem}.sums.json"
 
 
-def _write_manifest(module: ModuleType) -> None:
-    """Record the checksums of the kernel's cache files (after a compile wrote some)."""
-    sums = {f.name: [f.stat().st_ino, _sha256(f)] for f in _numba_files(module)}
+def _write_manifest(files: list[Path], manifest: Path) -> None:
+    """Record the checksums of cache files (after a compile wrote some)."""
+    sums = {f.name: [f.stat().st_ino, _sha256(f)] for f in files}
     try:
-        write_atomic(_manifest(module), json.dumps(sums, indent=0, sort_keys=True))
+        write_atomic(manifest, json.dumps(sums, indent=0, sort_keys=True))
     except OSError:
         pass     # a read-only cache: its files are what they are
 
 
-def _check_manifest(module: ModuleType) -> None:
-    """Remove the kernel's cache files when one no longer matches its recorded checksum.
+def _check_manifest(files: list[Path], manifest: Path, what: str) -> None:
+    """Remove cache files when one no longer matches its recorded checksum.
 
     Numba reads its index and machine code without checking them: a truncated
     or altered file fails on every later load (or worse). Numba replaces a file
@@ -335,26 +454,25 @@ def _check_manifest(module: ModuleType) -> None:
     written since, like one the manifest does not list, is left to Numba; the
     same inode with other bytes is damage.
     """
-    path = _manifest(module)
-    if not path.exists():
+    if not manifest.exists():
         return
     try:
-        sums = json.loads(path.read_text())
+        sums = json.loads(manifest.read_text())
         bad = []
         for name, (inode, digest) in sums.items():
-            f = path.parent / name
+            f = manifest.parent / name
             if f.exists() and f.stat().st_ino == inode and _sha256(f) != digest:
                 bad.append(name)
     except (OSError, ValueError, TypeError, AttributeError):
-        bad = [path.name]
+        bad = [manifest.name]
     if bad:
-        _warn(f"the compiled code of {Path(module.__file__).name} in the cache is damaged ({bad[0]}"
+        _warn(f"the compiled code of {what} in the cache is damaged ({bad[0]}"
               f"{f' and {len(bad) - 1} more' if len(bad) > 1 else ''}): compiling it again")
-        _clear_numba_files(module)
+        _clear(files, manifest)
 
 
-def _clear_numba_files(module: ModuleType) -> None:
-    for f in [*_numba_files(module), _manifest(module)]:
+def _clear(files: list[Path], manifest: Path) -> None:
+    for f in [*files, manifest]:
         try:
             f.unlink(missing_ok=True)
         except OSError:

@@ -9,15 +9,17 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import jackbox
 from codegen.version import SEAL, seal
-from jackbox import loader
+from jackbox import engine, loader
 
 from .conftest import write_scene
 
@@ -53,16 +55,29 @@ def fresh_cache(tmp_path, monkeypatch):
     return tmp_path / "cache"
 
 
-def test_changed_kernel_source_is_recompiled(fresh_cache, tmp_path, monkeypatch):
-    before = jackbox.simulate("drop", t_end=0.3, method=METHOD)
-    # An edit of the kernel: the RK4 weights become wrong (1/5 instead of 1/6).
-    edited = tmp_path / "kernel.py"
-    edited.write_text(loader.KERNEL_SOURCE.read_text().replace("h6 = dt / 6.0", "h6 = dt / 5.0"))
-    monkeypatch.setattr(loader, "KERNEL_SOURCE", edited)
-    after = jackbox.simulate("drop", t_end=0.3, method=METHOD)
-    assert after.meta["kernel"]["cache"] == "miss"
+def test_changed_hot_path_is_recompiled(fresh_cache, tmp_path, monkeypatch):
+    before = jackbox.simulate("drop", t_end=0.3)       # the exact method: the one that flies
+    # An edit of the free-flight hot path: the RK4 weights become wrong (1/5 instead of 1/6).
+    edited = tmp_path / "flight.py"
+    edited.write_text(loader.FLIGHT_SOURCE.read_text().replace("h6 = dt / 6.0", "h6 = dt / 5.0"))
+    monkeypatch.setattr(loader, "FLIGHT_SOURCE", edited)
+    after = jackbox.simulate("drop", t_end=0.3)
+    assert not loader.load_kernel(loader.ensure_model(jackbox.load_scene("drop"))).cache_hit
     assert np.abs(after.q[-1] - before.q[-1]).max() > 1e-3   # the edit shows: not the old code
     assert len(list((fresh_cache / "kernels").glob("drop_*.py"))) == 2
+
+
+def test_changed_engine_source_gets_a_cache_folder_of_its_own(tmp_path):
+    # Numba checks only a function's own file; the engine's machine code is
+    # kept per digest of all of its modules, so an edit of any stage is never
+    # served code compiled from the old text.
+    copy = tmp_path / "engine"
+    shutil.copytree(Path(engine.__file__).parent, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    assert engine.cache.digest_of(copy) == engine.cache.DIGEST
+    events = copy / "events.py"
+    events.write_text(events.read_text().replace("ttol = 4.0 *", "ttol = 8.0 *"))
+    assert engine.cache.digest_of(copy) != engine.cache.DIGEST
+    assert engine.cache.engine_cache_path().name == engine.cache.DIGEST
 
 
 def test_edited_model_module_is_recompiled(fresh_cache, tmp_path):

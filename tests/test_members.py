@@ -17,7 +17,7 @@ import pytest
 
 import jackbox
 from jackbox.ensemble import chaos, ensemble
-from jackbox.kernel import DONE, STALLED
+from jackbox.engine import DONE, STALLED
 
 from .conftest import run_cli
 from .test_ensemble import SPINNING

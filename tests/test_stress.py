@@ -202,7 +202,7 @@ class _Budgeted:
     def integrate_exact(self, *args):
         i, n_rec, n_ev, status = self._module.integrate_exact(*args)
         if status == self._module.IMPACT_LOG_FULL:
-            a = inspect.signature(self._module.integrate_exact.py_func).bind(*args).arguments
+            a = inspect.signature(self._module.integrate_exact).bind(*args).arguments
             raise OverBudget(len(a["ev_t"]), n_ev, i, a["t0"] + i * a["dt"])
         return i, n_rec, n_ev, status
 

@@ -1,0 +1,212 @@
+"""Event location: when, inside a step, a free gap first closes or a held contact's force turns.
+
+A step that would end with a free gap below zero, or whose cubic through the
+gaps and rates at both ends dips below zero (a grazing corner), is re-stepped
+from its start with shorter steps (Illinois iteration on the step length) to
+the first crossing, so the state at the event is an RK4 state and the method
+keeps order four. Likewise a persistent contact whose force would turn
+negative is released where it is zero.
+
+The re-steps go through ``step``, the integrator's compiled function value
+(:data:`jackbox.engine.records.STEP`), so neither :func:`first_crossing` nor
+:func:`first_release` carries a copy of it.
+"""
+
+import numpy as np
+from numba import njit
+
+from .gaps import hermite, hermite_extrema, step_reach
+from .modes import contact_accel
+from .records import AF, GA, GB, GS, LAM, LAMA, LAMB, QB, QDB, QDS, QS, T_EVENT, VA, VB
+
+# kinds of event function (passed as np.int64: a bare literal would make Numba
+# compile one specialisation per value)
+GAP_EVENT = 0           #: a gap (plus T_EVENT / 2) reaches zero
+FORCE_EVENT = 1         #: a persistent contact's force reaches zero
+
+
+@njit(cache=True)
+def event_value(model, step, kind, pos, ta, q, qd, s, p, tol, m, ws):
+    """Re-step from (ta, q, qd) to time s; the event function there.
+
+    kind GAP_EVENT: gap ``pos`` plus T_EVENT / 2; FORCE_EVENT: the force of
+    persistent contact ``ws.k[RIDX][pos]``. The state at s is left in
+    ``ws.n[QS]``, ``ws.n[QDS]``.
+    """
+    qs, qds = ws.n[QS], ws.n[QDS]
+    step(model, ta, q, qd, s - ta, p, qs, qds, m, ws)
+    if kind == GAP_EVENT:
+        g = ws.c[GS]
+        model.phi(s, qs, p, g)
+        return g[pos] + 0.5 * tol[T_EVENT]
+    contact_accel(model, s, qs, qds, p, m, ws.n[AF], ws)
+    return ws.c[LAM, pos]
+
+
+@njit(cache=True, inline="always")
+def locate(model, step, kind, pos, ta, q, qd, tl, fl, tr, fr, p, tol, m, ws):
+    """Illinois iteration for the root of the event function in [tl, tr] (fl >= 0 > fr).
+
+    Returns (tl, tr) with tr - tl near machine precision, f(tl) >= 0 > f(tr).
+    """
+    side = 0
+    ttol = 4.0 * 2.220446049250313e-16 * max(abs(tr), tr - ta)
+    for _ in range(200):
+        if tr - tl <= ttol:
+            break
+        s = (tl * fr - tr * fl) / (fr - fl)
+        if not (tl < s < tr):
+            s = 0.5 * (tl + tr)
+        f = event_value(model, step, kind, pos, ta, q, qd, s, p, tol, m, ws)
+        if f >= 0.0:
+            tl, fl = s, f
+            if side == -1:
+                fr *= 0.5
+            side = -1
+        else:
+            tr, fr = s, f
+            if side == 1:
+                fl *= 0.5
+            side = 1
+    return tl, tr
+
+
+@njit(cache=True, inline="always")
+def left_bracket(model, step, k, ta, h, fa, fb, da, db, sr, q, qd, p, tol, m, ws):
+    """Left end of the bracket of gap k's first crossing before ta + sr h.
+
+    The step's start, or, for a gap that is opening at the start (just after a
+    bounce, fa near zero), the hump of the cubic through its values and rates
+    at both ends, when the RK4 state there is further from contact.
+    """
+    tl, fl = ta, fa
+    if da > 0.0:
+        ext = ws.ext
+        nx = hermite_extrema(fa, fb, da, db, ext)
+        for j in range(nx):
+            if ext[j] < sr and hermite(fa, fb, da, db, ext[j]) > fa:
+                f = event_value(model, step, np.int64(GAP_EVENT), k, ta, q, qd, ta + ext[j] * h, p, tol, m, ws)
+                if f > fl:
+                    tl, fl = ta + ext[j] * h, f
+                break
+    return tl, fl
+
+
+@njit(cache=True)
+def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
+    """The earliest time in (ta, tb] where a free gap crosses -T_EVENT/2, or -1.
+
+    Uses the trial state at tb in ``ws.n[QB]``, ``ws.n[QDB]`` and its gaps
+    ``ws.c[GB]``; the gaps at ta are ``ws.c[GA]``. On success the state just
+    before the crossing (every free gap >= -T_EVENT/2) is left in
+    ``ws.n[QS]``, ``ws.n[QDS]`` and the returned value is its time; returns
+    ta when a contact is already closing at ta with nothing to separate it (a
+    touch).
+    """
+    C = model.n_contact
+    h = tb - ta
+    half = 0.5 * tol[T_EVENT]
+    gap_kind = np.int64(GAP_EVENT)
+    ga, gb, va, vb = ws.c[GA], ws.c[GB], ws.c[VA], ws.c[VB]
+    band = step_reach(qd, ws.n[QDB], h, tol)
+    near = False
+    for k in range(C):
+        if not rest[k] and min(ga[k], gb[k]) + half < band:
+            near = True
+            break
+    if not near:
+        return -1.0
+    model.gap_rate(ta, q, qd, p, va)
+    model.gap_rate(tb, ws.n[QB], ws.n[QDB], p, vb)
+    ext = ws.ext
+    best_l = -1.0
+    best_k = -1
+    t_hi = tb
+    for k in range(C):
+        if rest[k]:
+            continue
+        fa, fb = ga[k] + half, gb[k] + half
+        if min(fa, fb) >= band:
+            continue
+        da, db = h * va[k], h * vb[k]
+        # right end of the bracket: the step's end, or the cubic's negative dip
+        nx = hermite_extrema(fa, fb, da, db, ext)
+        sr = -1.0
+        fr = 0.0
+        if fb < 0.0:
+            sr, fr = 1.0, fb
+        for j in range(nx):
+            if hermite(fa, fb, da, db, ext[j]) < 0.0 and (sr < 0.0 or ext[j] < sr):
+                sr = ext[j]
+                fr = event_value(model, step, gap_kind, k, ta, q, qd, ta + sr * h, p, tol, m, ws)
+                if fr >= 0.0:
+                    sr = 1.0 if fb < 0.0 else -1.0
+                    fr = fb
+                break
+        if sr < 0.0:
+            continue
+        tr = ta + sr * h
+        if best_k >= 0 and tr > t_hi:
+            # a later bracket: only matters if this gap is already negative at the best time
+            continue
+        tl, fl = left_bracket(model, step, k, ta, h, fa, fb, da, db, sr, q, qd, p, tol, m, ws)
+        if fl <= 0.0:
+            return ta  # touching now, with no resolvable flight before the crossing
+        tl, tr = locate(model, step, gap_kind, k, ta, q, qd, tl, fl, tr, fr, p, tol, m, ws)
+        if best_k < 0 or tl < best_l:
+            best_l, best_k = tl, k
+            t_hi = tr
+    if best_k < 0:
+        return -1.0
+    # The state just before the first crossing; any other gap already below
+    # zero there crossed earlier: locate it within [ta, best].
+    for _ in range(C):
+        event_value(model, step, gap_kind, np.int64(best_k), ta, q, qd, best_l, p, tol, m, ws)
+        g = ws.c[GS]
+        worst = -1
+        for k in range(C):
+            if not rest[k] and g[k] + half < 0.0 and (worst < 0 or g[k] < g[worst]):
+                worst = k
+        if worst < 0:
+            return best_l
+        fr = g[worst] + half
+        fa, fb = ga[worst] + half, gb[worst] + half
+        sr = (best_l - ta) / h
+        tl, fl = left_bracket(model, step, np.int64(worst), ta, h, fa, fb, h * va[worst], h * vb[worst], sr,
+                              q, qd, p, tol, m, ws)
+        if fl <= 0.0:
+            return ta
+        tl, tr = locate(model, step, gap_kind, np.int64(worst), ta, q, qd, tl, fl, best_l, fr, p, tol, m, ws)
+        best_l, best_k = tl, worst
+    return best_l
+
+
+@njit(cache=True)
+def first_release(model, step, ta, tb, q, qd, p, tol, m, ws):
+    """When the earliest persistent contact's force turns negative in (ta, tb], or -1.
+
+    Returns the time just after the sign change (the force is negative there),
+    or ta when a force already pulls at ta.
+    """
+    lam_a, lam_b = ws.c[LAMA], ws.c[LAMB]
+    contact_accel(model, tb, ws.n[QB], ws.n[QDB], p, m, ws.n[AF], ws)
+    pulls = False
+    for i in range(m):
+        lam_b[i] = ws.c[LAM, i]
+        if not lam_b[i] >= 0.0:     # (NaN too, as the force's minimum would)
+            pulls = True
+    if not pulls:
+        return -1.0
+    contact_accel(model, ta, q, qd, p, m, ws.n[AF], ws)
+    for i in range(m):
+        lam_a[i] = ws.c[LAM, i]
+    best = -1.0
+    for i in range(m):
+        if lam_b[i] >= 0.0:
+            continue
+        if lam_a[i] < 0.0:
+            return ta
+        tl, tr = locate(model, step, np.int64(FORCE_EVENT), np.int64(i), ta, q, qd, ta, lam_a[i], tb, lam_b[i], p, tol, m, ws)
+        if best < 0.0 or tr < best:
+            best = tr
+    return best

@@ -1,0 +1,121 @@
+"""The free-flight hot path, compiled with each model (the only per-model code besides its functions).
+
+This file is not imported as it stands: :mod:`jackbox.loader` appends its
+text to a generated model's, so that these functions call the model's tuple
+functions (``accel_s``, ``accel_time_s``, ``phi_s``, ``box_motion_s``) and
+constants (``N_DOF``, ``N_CONTACT``, ``PRESCRIBED``, ``HAS_GROUND``) as
+globals of the same file, inlined, with the state in registers. The binding
+compiles :func:`fly` and :func:`clearance` as ``cfunc`` values of the
+signatures in :mod:`jackbox.engine.records`; the engine calls them through
+the model record.
+
+Far from every wall the exact loop hands over to :func:`fly`, which
+integrates on floats only and looks at no gap row: the broad phase
+(:mod:`jackbox.engine.broad`) bounds them, so a quiet step costs one RK4 step.
+"""
+
+from jackbox.engine.broad import bound as _bound
+from jackbox.engine.gaps import speed_bound as _speed_bound
+from jackbox.engine.records import T_EVENT as _T_EVENT, T_GAP as _T_GAP
+
+#: skip the gap rows of steps whose bounding circles are far from contact
+#: (the benchmark compiles a copy with False to show the gain)
+BROAD_PHASE = True
+
+
+def rk4_stages(q, qd, dt, p, ta, tta, tm, ttm, tb, ttb):
+    """One classical RK4 step of ``q' = qd, qd' = accel(t, q, qd)`` on tuples.
+
+    Stage times ta, tm, tb come with their time terms ``tt* = accel_time_s(t*,
+    p)`` (a shaking force's sine, 1/m), computed once per stage time. The
+    tableau is :mod:`jackbox.engine.integrator`'s. Returns ``(q, qd)``.
+    """
+    h2 = 0.5 * dt
+    a1 = accel_s(ta, q, qd, p, tta)
+    v2 = axpy_s(h2, a1, qd)
+    a2 = accel_s(tm, axpy_s(h2, qd, q), v2, p, ttm)
+    v3 = axpy_s(h2, a2, qd)
+    a3 = accel_s(tm, axpy_s(h2, v2, q), v3, p, ttm)
+    v4 = axpy_s(dt, a3, qd)
+    a4 = accel_s(tb, axpy_s(dt, v3, q), v4, p, ttb)
+    h6 = dt / 6.0
+    return rk4_sum_s(q, h6, qd, v2, v3, v4), rk4_sum_s(qd, h6, a1, a2, a3, a4)
+
+
+def grid_step(t, t_next, tt, q, qd, dt, p):
+    """A whole step of the time grid from t to t_next, on tuples; tt: the time terms at t.
+
+    Returns ``(q, qd, time terms at t_next)``, so consecutive steps share them.
+    """
+    tm = t + 0.5 * dt
+    tt_next = accel_time_s(t_next, p)
+    qn, vn = rk4_stages(q, qd, dt, p, t, tt, tm, accel_time_s(tm, p), t_next, tt_next)
+    return qn, vn, tt_next
+
+
+def clearance_s(t, q, p, tol):
+    """The broad phase's bound on every gap (q: a tuple or an array of the integrated coordinates)."""
+    if PRESCRIBED:
+        box = box_motion_s(t, p)
+        return _bound(box[0], box[1], box[2], q[0], q[1], tol, HAS_GROUND)
+    return _bound(q[0], q[1], q[2], q[3], q[4], tol, HAS_GROUND)
+
+
+def clearance(t, q, p, tol):
+    """A lower bound on every gap at (t, q): the broad phase, or the smallest gap without it."""
+    if BROAD_PHASE:
+        return clearance_s(t, q, p, tol)
+    g = phi_s(t, q, p)
+    c = g[0]
+    for k in range(1, N_CONTACT):
+        c = min(c, g[k])
+    return c
+
+
+def fly(t0, dt, i, i_stop, q_io, qd_io, p, tol, clear, qn_out, vn_out):
+    """Steps i, i+1, ... of free flight while the broad phase shows them quiet.
+
+    ``clear`` is a lower bound on every gap at the start; each step lowers it
+    by the step's band (twice the travel bound) and only when that leaves too
+    little is the clearance computed again, so far from the walls a step costs
+    one RK4 step on floats and a speed bound. Stops before the first step that
+    might come near contact or at i_stop. q_io, qd_io: the state, updated;
+    qn_out, vn_out: the trial state of the step it stopped before (the caller
+    need not redo it). Returns ``(i, clear)``.
+    """
+    q, qd = tuple_of(q_io), tuple_of(qd_io)
+    margin = tol[_T_GAP] - 0.5 * tol[_T_EVENT]
+    qn, vn = q, qd
+    tt = accel_time_s(t0 + i * dt, p)
+    sa = _speed_bound(qd, tol)
+    while i < i_stop:
+        t_next = t0 + (i + 1) * dt
+        qn, vn, tt_next = grid_step(t0 + i * dt, t_next, tt, q, qd, dt, p)
+        sb = _speed_bound(vn, tol)
+        band = dt * max(sa, sb) + margin      # step_reach(qd, vn, dt, tol) - T_EVENT / 2
+        if not clear >= band:        # (also stops on a non-finite state)
+            break
+        if BROAD_PHASE:
+            c = clear - band
+            if c < band:
+                c = clearance_s(t_next, qn, p, tol)
+        else:                        # every gap row, every step
+            g = phi_s(t_next, qn, p)
+            c = g[0]
+            for k in range(1, N_CONTACT):
+                c = min(c, g[k])
+        if not c >= band:
+            break
+        q, qd, clear, tt, sa = qn, vn, c, tt_next, sb
+        i += 1
+    for d in range(N_DOF):
+        q_io[d] = q[d]
+        qd_io[d] = qd[d]
+        qn_out[d] = qn[d]
+        vn_out[d] = vn[d]
+    return i, clear
+
+
+#: what the binding compiles: inlined helpers, then the functions the engine calls
+INLINED = ("rk4_stages", "grid_step", "clearance_s")
+ENTRIES = ("clearance", "fly")

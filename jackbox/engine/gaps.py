@@ -1,0 +1,80 @@
+"""Gaps in time: how fast a gap can change, and the cubic through a gap at both ends of a step.
+
+A step needs a look at its gap rows only if some gap could come within its
+travel of contact (:func:`step_reach`); a gap positive at both ends of a step
+can still dip below zero inside it (a grazing corner): the cubic Hermite
+interpolant through its values and rates at both ends shows where
+(:func:`hermite_extrema`, :func:`hermite`).
+"""
+
+import math
+
+from numba import njit
+
+from .records import T_BOXV, T_GAP, T_SPEED
+
+
+@njit(cache=True, inline="always")
+def speed_bound(qd, tol):
+    """A bound on how fast any gap can change at rates qd (a tuple or an array)."""
+    s = tol[T_BOXV]
+    for d in range(len(qd)):
+        s += abs(qd[d]) * tol[T_SPEED + d]
+    return s
+
+
+@njit(cache=True, inline="always")
+def step_reach(qd_a, qd_b, h, tol):
+    """How close to contact a gap must come, at one end of a step of length h, to need a look.
+
+    A gap positive at both ends can only dip below zero inside the step if one
+    end is within half the step's travel of contact. The travel is bounded by
+    h times the larger of the two ends' speed bounds (each |qd_i| times the
+    most a unit rate can move any gap, plus the prescribed box's speed); the
+    band is twice the half, for the speed's change within the step.
+    """
+    return h * max(speed_bound(qd_a, tol), speed_bound(qd_b, tol)) + tol[T_GAP]
+
+
+@njit(cache=True)
+def hermite_extrema(fa, fb, da, db, ext):
+    """Interior stationary points s in (0, 1) of the cubic with values fa, fb and slopes da, db.
+
+    Writes up to two of them into ext (ascending); returns their number.
+    """
+    a3 = 2.0 * fa + da - 2.0 * fb + db
+    a2 = -3.0 * fa - 2.0 * da + 3.0 * fb - db
+    # H'(s) = 3 a3 s^2 + 2 a2 s + da
+    A_, B_, C_ = 3.0 * a3, 2.0 * a2, da
+    n = 0
+    if abs(A_) < 1e-300:
+        if abs(B_) > 1e-300:
+            s = -C_ / B_
+            if 0.0 < s < 1.0:
+                ext[0] = s
+                n = 1
+        return n
+    disc = B_ * B_ - 4.0 * A_ * C_
+    if disc < 0.0:
+        return 0
+    r = math.sqrt(disc)
+    qq = -0.5 * (B_ + math.copysign(r, B_))
+    s1 = qq / A_
+    s2 = C_ / qq if qq != 0.0 else s1
+    lo, hi = min(s1, s2), max(s1, s2)
+    if 0.0 < lo < 1.0:
+        ext[n] = lo
+        n += 1
+    if 0.0 < hi < 1.0 and hi != lo:
+        ext[n] = hi
+        n += 1
+    return n
+
+
+@njit(cache=True)
+def hermite(fa, fb, da, db, s):
+    """The cubic with values fa, fb and slopes da, db at 0 and 1, at s."""
+    s2 = s * s
+    s3 = s2 * s
+    return ((2 * s3 - 3 * s2 + 1) * fa + (s3 - 2 * s2 + s) * da
+            + (-2 * s3 + 3 * s2) * fb + (s3 - s2) * db)

@@ -1,0 +1,212 @@
+"""Impacts: the contact matrix, a small dense solver and the impulses' LCP.
+
+With ``J`` the rows of ``phi_q`` of the contacts that take part, ``W = M^-1``
+and ``v = J qd (+ phi_t)`` their normal velocities, the impulses ``lam`` solve
+the linear complementarity problem
+
+.. math::
+
+    w = J W J^T \\lambda + b \\ge 0,\\quad \\lambda \\ge 0,\\quad w^T\\lambda = 0,
+    \\qquad b_k = v_k + e_k \\min(v_k, 0),
+
+i.e. Newton's law per contact: an approaching contact leaves at ``-e v`` or
+faster, a receding one is not pulled back, and no impulse pulls. All contacts
+are solved together, never one after the other. The same LCP, on
+accelerations, decides which resting contacts carry a force
+(:mod:`jackbox.engine.modes`).
+"""
+
+import numpy as np
+from numba import njit
+
+from .records import HIT, IDX, LAM, LR, LX, MAX_ENUMERATED, R, RHS, VT, WINV
+
+
+@njit(cache=True)
+def contact_matrix(jac, winv, rows, m, A):
+    """``A = J_R M^-1 J_R^T`` for the m contacts listed in rows (M diagonal: winv = diag M^-1)."""
+    n = jac.shape[1]
+    for i in range(m):
+        for j in range(i, m):
+            s = 0.0
+            for d in range(n):
+                s += jac[rows[i], d] * winv[d] * jac[rows[j], d]
+            A[i, j] = s
+            A[j, i] = s
+
+
+@njit(cache=True)
+def solve_dense(A, b, m, x, ws):
+    """Solve ``A[:m, :m] x = b[:m]`` by Gaussian elimination with partial pivoting.
+
+    Works on copies (in the scratch record); returns False when the matrix is
+    singular to working precision.
+    """
+    a = ws.lu
+    r = ws.c[R]
+    for i in range(m):
+        r[i] = b[i]
+        for k in range(m):
+            a[i, k] = A[i, k]
+    scale = 0.0
+    for i in range(m):
+        scale = max(scale, abs(a[i, i]))
+    for col in range(m):
+        piv = col
+        for row in range(col + 1, m):
+            if abs(a[row, col]) > abs(a[piv, col]):
+                piv = row
+        if abs(a[piv, col]) <= 1e-12 * scale:
+            return False
+        if piv != col:
+            for k in range(m):
+                a[col, k], a[piv, k] = a[piv, k], a[col, k]
+            r[col], r[piv] = r[piv], r[col]
+        for row in range(col + 1, m):
+            f = a[row, col] / a[col, col]
+            for k in range(col, m):
+                a[row, k] -= f * a[col, k]
+            r[row] -= f * r[col]
+    for row in range(m - 1, -1, -1):
+        s = r[row]
+        for k in range(row + 1, m):
+            s -= a[row, k] * x[k]
+        x[row] = s / a[row, row]
+    return True
+
+
+@njit(cache=True)
+def solve_regularised(A, rhs, m, x, ws):
+    """Solve ``A x = rhs`` for PSD A; a redundant contact set gets a tiny diagonal shift."""
+    if solve_dense(A, rhs, m, x, ws):
+        return
+    scale = 0.0
+    for i in range(m):
+        scale = max(scale, A[i, i])
+    B = ws.sub
+    for i in range(m):
+        for k in range(m):
+            B[i, k] = A[i, k]
+        B[i, i] += 1e-10 * scale
+    if not solve_dense(B, rhs, m, x, ws):
+        for i in range(m):
+            x[i] = 0.0
+
+
+@njit(cache=True)
+def solve_lcp(A, b, m, lam, ws):
+    """Impulses (or forces) of the LCP ``w = A lam + b >= 0, lam >= 0, w . lam = 0``.
+
+    Exact for up to MAX_ENUMERATED contacts: tries every active set, smallest
+    first, and keeps the first whose impulses are non-negative and whose
+    inactive contacts do not approach. ``A = J M^-1 J^T`` is positive
+    semi-definite, so a solution exists and the velocities it gives are unique.
+    Larger sets use projected Gauss-Seidel.
+    """
+    bscale = 0.0
+    for k in range(m):
+        bscale = max(bscale, abs(b[k]))
+    tol = 1e-10 * bscale
+    if m <= MAX_ENUMERATED:
+        sub, rhs, x, idx = ws.sub, ws.c[LR], ws.c[LX], ws.k[IDX]
+        for size in range(1, m + 1):
+            for mask in range(1, 1 << m):
+                count = 0
+                for k in range(m):
+                    if mask >> k & 1:
+                        idx[count] = k
+                        count += 1
+                if count != size:
+                    continue
+                for i in range(size):
+                    rhs[i] = -b[idx[i]]
+                    for j in range(size):
+                        sub[i, j] = A[idx[i], idx[j]]
+                if not solve_dense(sub, rhs, size, x, ws):
+                    continue
+                ok = True
+                for i in range(size):
+                    if x[i] < -tol / max(A[idx[i], idx[i]], 1e-300):
+                        ok = False
+                if not ok:
+                    continue
+                for k in range(m):
+                    lam[k] = 0.0
+                for i in range(size):
+                    lam[idx[i]] = max(x[i], 0.0)
+                for k in range(m):
+                    if not mask >> k & 1:
+                        w = b[k]
+                        for j in range(m):
+                            w += A[k, j] * lam[j]
+                        if w < -tol:
+                            ok = False
+                if ok:
+                    return
+    # Projected Gauss-Seidel: converges for PSD A; used for very large contact sets.
+    for k in range(m):
+        lam[k] = 0.0
+    for sweep in range(1000):
+        for k in range(m):
+            w = b[k]
+            for j in range(m):
+                w += A[k, j] * lam[j]
+            lam[k] = max(0.0, lam[k] - w / max(A[k, k], 1e-300))
+
+
+@njit(cache=True)
+def resolve_impacts(model, t, q, qd, p, gap, active_tol, ws, log, n_imp):
+    """Method "naive": the impulses of every contact with ``gap < active_tol``, all at once.
+
+    Changes qd in place; logs each contact that received an impulse into
+    ``log`` (an Events record) from ``n_imp``. Returns the new log length.
+    """
+    n, C = model.n_dof, model.n_contact
+    rows = ws.k[HIT]
+    m = 0
+    for k in range(C):
+        if gap[k] < active_tol:
+            rows[m] = k
+            m += 1
+    if m == 0:
+        return n_imp
+    jac = ws.jac
+    model.phi_q(t, q, p, jac)
+    v_t = ws.c[VT]
+    for k in range(C):
+        v_t[k] = 0.0
+    if model.prescribed:
+        model.phi_t(t, q, p, v_t)
+    winv = ws.n[WINV]
+    model.inverse_mass(p, winv)
+    b = ws.c[RHS]
+    approaching = False
+    for i in range(m):
+        k = rows[i]
+        s = v_t[k]
+        for j in range(n):
+            s += jac[k, j] * qd[j]
+        e = p[model.e_slot] if k < model.n_wall else p[model.e_ground_slot]
+        b[i] = s + e * min(s, 0.0)
+        if s < 0.0:
+            approaching = True
+    if not approaching:
+        return n_imp
+    A = ws.A
+    for i in range(m):
+        for j in range(m):
+            s = 0.0
+            for d in range(n):
+                s += jac[rows[i], d] * winv[d] * jac[rows[j], d]
+            A[i, j] = s
+    lam = ws.c[LAM]
+    solve_lcp(A, b, np.int64(m), lam, ws)
+    for i in range(m):
+        if lam[i] > 0.0:
+            k = rows[i]
+            for d in range(n):
+                qd[d] += winv[d] * jac[k, d] * lam[i]
+            log.t[n_imp] = t
+            log.k[n_imp] = k
+            n_imp += 1
+    return n_imp

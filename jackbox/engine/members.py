@@ -1,0 +1,194 @@
+"""Members: many runs of one model at once, one per ``prange`` iteration (ensembles and twins).
+
+A member runs :func:`~jackbox.engine.loop.integrate_exact` (its compiled
+function value ``exact``, so the loop's machine code is not generated again
+here) segment by segment (to each sample step, then to the end) with no recording in between.
+Its result depends on its inputs only, so any split of the members over
+threads, processes or machines gives the same numbers bit for bit.
+"""
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from .records import DONE, IMPACT_LOG_FULL, IMPULSE, Events, Samples
+
+#: tally slots of one member: impulses so far, time of the first one (NaN if none)
+TALLY_IMPULSES = 0
+TALLY_FIRST = 1
+#: first size of a member's event log (it doubles when one step needs more)
+LOG_SIZE = 256
+
+
+@njit(cache=True)
+def new_log(size):
+    return Events(np.empty(size), np.empty(size, np.int64), np.empty(size, np.int64))
+
+
+@njit(cache=True)
+def run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, stop, out, n_rec, log, tally):
+    """Steps i..stop of one member through any number of full event logs.
+
+    Counts impulses into tally; records a sample at stop (into ``out`` at
+    n_rec; on the first call, with i = 0 and n_rec = 0, also the start).
+    Returns ``(step reached, n_rec, status, log)``: the log is a new, bigger
+    one when a single step needed more room.
+    """
+    while True:
+        i, n_rec, n_ev, status = exact(model, stages, q, qd, rest, p, tol, 0.0, dt, i, stop, stop, stop + 1,
+                                                 out, n_rec, log, 0)
+        for j in range(n_ev):
+            if log.kind[j] == IMPULSE:
+                if tally[TALLY_IMPULSES] == 0.0:
+                    tally[TALLY_FIRST] = log.t[j]
+                tally[TALLY_IMPULSES] += 1.0
+        if status != IMPACT_LOG_FULL:
+            return i, n_rec, status, log
+        if n_ev == 0:    # one step has more events than the log holds
+            log = new_log(2 * log.t.shape[0])
+
+
+@njit(cache=True)
+def new_samples(n):
+    return Samples(np.empty(n), np.empty((n, 6)), np.empty((n, 6)), np.empty(n))
+
+
+@njit(cache=True)
+def run_member(model, exact, stages, q0, qd0, p, tol, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
+    """One ensemble member from its start state to n_steps.
+
+    sample_steps: ascending steps in [0, n_steps] whose (6-column) state goes
+    to samp_q[s], samp_qd[s]. fin_q, fin_qd: the final state (6 columns).
+    fin: [energy, impulses, first impulse time, status, step reached].
+    """
+    q, qd = q0.copy(), qd0.copy()
+    rest = np.zeros(model.n_contact, np.int64)
+    log = new_log(LOG_SIZE)
+    out = new_samples(2)
+    tally = np.zeros(2)
+    tally[TALLY_FIRST] = np.nan
+    # step 0: the start, after any impulse a touching start state gets
+    i, n_rec, status, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, 0, 0, out, 0, log, tally)
+    s = 0
+    if s < sample_steps.shape[0] and sample_steps[s] == 0:
+        samp_q[s, :] = out.q[0]
+        samp_qd[s, :] = out.qd[0]
+        s += 1
+    fin_q[:] = out.q[0]
+    fin_qd[:] = out.qd[0]
+    fin[0] = out.energy[0]
+    while status == DONE and i < n_steps:
+        stop = sample_steps[s] if s < sample_steps.shape[0] else n_steps
+        i, n_rec, status, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, stop, out, 1, log, tally)
+        if status != DONE:
+            break
+        if s < sample_steps.shape[0] and stop == sample_steps[s]:
+            samp_q[s, :] = out.q[1]
+            samp_qd[s, :] = out.qd[1]
+            s += 1
+        fin_q[:] = out.q[1]
+        fin_qd[:] = out.qd[1]
+        fin[0] = out.energy[1]
+    fin[1] = tally[TALLY_IMPULSES]
+    fin[2] = tally[TALLY_FIRST]
+    fin[3] = status
+    fin[4] = i
+
+
+@njit(cache=True, parallel=True)
+def run_members(model, exact, stages, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
+    """:func:`run_member` for every row of Q0, QD0, P, TOL, in parallel (prange)."""
+    for j in prange(Q0.shape[0]):
+        run_member(model, exact, stages, Q0[j], QD0[j], P[j], TOL[j], dt, n_steps, sample_steps, samp_q[j], samp_qd[j],
+                   fin_q[j], fin_qd[j], fin[j])
+
+
+@njit(cache=True)
+def run_twins(model, exact, stages, q0, qd0, dq, dqd, p, tol, dt, n_steps, renorm_steps, scale, stretch, fin):
+    """Twin trajectories of one member for the finite-time Lyapunov exponent.
+
+    The twin starts at (q0 + dq, qd0 + dqd). Every renorm_steps steps the
+    separation d (state difference divided by ``scale``, per coordinate) is
+    measured, log(d / d0) goes to stretch[k], and the twin is put back at
+    distance d0 along the current separation (Benettin's renormalisation).
+    fin: [impulses of the reference, status, step reached].
+    """
+    n = model.n_dof
+    q, qd = q0.copy(), qd0.copy()
+    qt, qdt = q0 + dq, qd0 + dqd
+    d0 = 0.0
+    for d in range(n):
+        d0 += (dq[d] / scale[d]) ** 2 + (dqd[d] / scale[n + d]) ** 2
+    d0 = math.sqrt(d0)
+    rest, rest_t = np.zeros(model.n_contact, np.int64), np.zeros(model.n_contact, np.int64)
+    log, log_t = new_log(LOG_SIZE), new_log(LOG_SIZE)
+    out = new_samples(2)
+    tally, tally_t = np.zeros(2), np.zeros(2)
+    i = 0
+    i2 = 0
+    status = DONE
+    n_rec = 0
+    k = 0
+    while i < n_steps:
+        stop = min(i + renorm_steps, n_steps)
+        i, _, status, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, stop, out, n_rec, log, tally)
+        if status != DONE:
+            break
+        i2, _, status, log_t = run_segment(model, exact, stages, qt, qdt, rest_t, p, tol, dt, i2, stop, out, n_rec, log_t,
+                                           tally_t)
+        n_rec = 1
+        if status != DONE:
+            break
+        dist = 0.0
+        for d in range(n):
+            dist += ((qt[d] - q[d]) / scale[d]) ** 2 + ((qdt[d] - qd[d]) / scale[n + d]) ** 2
+        dist = math.sqrt(dist)
+        if not dist > 0.0:      # the twins met (round-off): no stretch to measure, restart the twin
+            stretch[k] = np.nan
+            for d in range(n):
+                qt[d] = q[d] + dq[d]
+                qdt[d] = qd[d] + dqd[d]
+        else:
+            stretch[k] = math.log(dist / d0)
+            f = d0 / dist
+            for d in range(n):
+                qt[d] = q[d] + f * (qt[d] - q[d])
+                qdt[d] = qd[d] + f * (qdt[d] - qd[d])
+        rest_t[:] = rest
+        k += 1
+    for j in range(k, stretch.shape[0]):
+        stretch[j] = np.nan
+    fin[0] = tally[TALLY_IMPULSES]
+    fin[1] = status
+    fin[2] = i
+
+
+@njit(cache=True, parallel=True)
+def run_twin_members(model, exact, stages, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin):
+    """:func:`run_twins` for every member, in parallel (prange)."""
+    for j in prange(Q0.shape[0]):
+        run_twins(model, exact, stages, Q0[j], QD0[j], DQ[j], DQD[j], P[j], TOL[j], dt, n_steps, renorm_steps, scale,
+                  stretch[j], fin[j])
+
+
+@njit(cache=True)
+def box_speed_bound(model, p, t_end, n_samples, r_box):
+    """Largest speed of any point of a prescribed box over [0, t_end], sampled at n_samples times."""
+    speed = 0.0
+    box = np.empty(6)
+    for j in range(n_samples):
+        model.box_motion(t_end * j / max(n_samples - 1, 1), p, box)
+        speed = max(speed, math.hypot(box[3], box[4]) + abs(box[5]) * r_box)
+    return speed
+
+
+@njit(cache=True)
+def start_gaps(model, Q0, P):
+    """(n,) the smallest gap of each member's start state (negative: inside a wall)."""
+    out = np.empty(Q0.shape[0])
+    gap = np.empty(model.n_contact)
+    for j in range(Q0.shape[0]):
+        model.phi(0.0, Q0[j], P[j], gap)
+        out[j] = gap.min()
+    return out

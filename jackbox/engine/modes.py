@@ -1,0 +1,211 @@
+"""Contact modes: which contacts are persistent (held closed), and the dynamics with them held.
+
+Between events the state follows the dynamics with the persistent contacts R
+held closed: ``qdd = M^-1 f + M^-1 J_R^T lam``, with ``lam`` solving
+``(J_R M^-1 J_R^T) lam = -(J_R M^-1 f + gap_bias_R)`` (gap accelerations
+zero).
+
+Integers passed on to other jitted functions are wrapped in ``np.int64``: a
+value Numba can see as a constant (a literal 0, a global) would otherwise make
+it compile the callee once more for that constant. At an event (:func:`update_contacts`) the contacts that take part get
+their impulses (:mod:`jackbox.engine.impact`), then the accelerations' LCP
+decides which closed, still contacts carry a force: those stay (or become)
+persistent, the others are released. :func:`project_rest` removes RK4's drift
+off the held contacts after each step.
+"""
+
+import numpy as np
+from numba import njit
+
+from .impact import contact_matrix, solve_lcp, solve_regularised
+from .records import (ACC, BIAS, CAND, GS, HIT, IMPULSE, LAM, NEAR, NEWREST, RELEASE, REST, RHS,
+                      RIDX, T_GAP, T_VREST, VB, WINV)
+
+
+@njit(cache=True)
+def rest_index(rest, ridx):
+    """Indices of the persistent contacts into ridx; returns their number."""
+    m = 0
+    for k in range(rest.shape[0]):
+        if rest[k]:
+            ridx[m] = k
+            m += 1
+    return m
+
+
+@njit(cache=True)
+def contact_accel(model, t, q, qd, p, m, a, ws):
+    """Accelerations with the m persistent contacts (``ws.k[RIDX]``) held closed.
+
+    Fills a; leaves the contact forces in ``ws.c[LAM, :m]`` and ``ws.jac = phi_q``.
+    """
+    model.accel(t, q, qd, p, a)
+    if m == 0:
+        return
+    n = model.n_dof
+    ridx, jac, A = ws.k[RIDX], ws.jac, ws.A
+    winv = ws.n[WINV]
+    model.inverse_mass(p, winv)
+    model.phi_q(t, q, p, jac)
+    bias, rhs, lam = ws.c[BIAS], ws.c[RHS], ws.c[LAM]
+    model.gap_bias(t, q, qd, p, bias)
+    contact_matrix(jac, winv, ridx, m, A)
+    for i in range(m):
+        k = ridx[i]
+        s = bias[k]
+        for d in range(n):
+            s += jac[k, d] * a[d]
+        rhs[i] = -s
+    solve_regularised(A, rhs, m, lam, ws)
+    for d in range(n):
+        s = 0.0
+        for i in range(m):
+            s += jac[ridx[i], d] * lam[i]
+        a[d] += winv[d] * s
+
+
+@njit(cache=True)
+def project_rest(model, t, q, qd, p, m, ws):
+    """Put the persistent contacts back on gap = 0 and rate = 0 (removes RK4's drift)."""
+    n = model.n_dof
+    ridx, jac, A = ws.k[RIDX], ws.jac, ws.A
+    winv = ws.n[WINV]
+    model.inverse_mass(p, winv)
+    g, rhs, x = ws.c[GS], ws.c[RHS], ws.c[LAM]
+    for _ in range(2):   # Newton on the gaps; the drift is O(dt^5), one pass is plenty
+        model.phi(t, q, p, g)
+        model.phi_q(t, q, p, jac)
+        contact_matrix(jac, winv, ridx, m, A)
+        for i in range(m):
+            rhs[i] = -g[ridx[i]]
+        solve_regularised(A, rhs, m, x, ws)
+        for d in range(n):
+            s = 0.0
+            for i in range(m):
+                s += jac[ridx[i], d] * x[i]
+            q[d] += winv[d] * s
+    model.phi_q(t, q, p, jac)
+    contact_matrix(jac, winv, ridx, m, A)
+    model.gap_rate(t, q, qd, p, g)
+    for i in range(m):
+        rhs[i] = -g[ridx[i]]
+    solve_regularised(A, rhs, m, x, ws)
+    for d in range(n):
+        s = 0.0
+        for i in range(m):
+            s += jac[ridx[i], d] * x[i]
+        qd[d] += winv[d] * s
+
+
+@njit(cache=True)
+def log_event(t, k, kind, log, n_ev):
+    """Append an event to the log (an Events record) if it has room; returns the new count."""
+    if n_ev < log.t.shape[0]:
+        log.t[n_ev] = t
+        log.k[n_ev] = k
+        log.kind[n_ev] = kind
+    return n_ev + 1
+
+
+@njit(cache=True)
+def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev, vscale):
+    """At an event: impulses for the contacts that take part, then the persistent set.
+
+    Contacts closer than T_GAP take part when they approach or are still.
+    Approaching ones get Newton's law (restitution e, or 0 for speeds below
+    T_VREST * vscale: those come to rest); all are solved together. Then the
+    contacts that are closed and still get the accelerations' LCP
+    ``w = A lam + (J a + bias) >= 0, lam >= 0, w.lam = 0``; those with a force
+    stay (or become) persistent, the others are released. vscale (normally 1)
+    widens "at rest" when an event made no progress.
+    Returns ``(n_ev, m)`` with m the number of persistent contacts.
+    """
+    n, C = model.n_dof, model.n_contact
+    jac, A = ws.jac, ws.A
+    g, v, bias = ws.c[GS], ws.c[VB], ws.c[BIAS]
+    model.phi(t, q, p, g)
+    model.gap_rate(t, q, qd, p, v)
+    model.phi_q(t, q, p, jac)
+    winv = ws.n[WINV]
+    model.inverse_mass(p, winv)
+    near = ws.k[NEAR]
+    m = 0
+    # closer than T_GAP, or than the contact travels in the time resolution at t
+    dt_res = 8.0 * 2.220446049250313e-16 * max(abs(t), 1.0)
+    for k in range(C):
+        if g[k] < tol[T_GAP] + abs(v[k]) * dt_res or rest[k]:
+            near[m] = k
+            m += 1
+    if m == 0:
+        for k in range(C):
+            if rest[k]:
+                rest[k] = 0
+        return n_ev, 0
+    vrest = tol[T_VREST] * vscale
+    tiny = 1e-3 * tol[T_VREST]  # normal speeds below this are round-off
+    # The impact: contacts that approach or are closed and still. A receding
+    # contact takes no part: an impulse there would push it apart while the
+    # others' impulses slow it, which adds energy (it may hit again later).
+    hit = ws.k[HIT]
+    nh = 0
+    approaching = False
+    for i in range(m):
+        k = near[i]
+        if v[k] <= tiny:
+            hit[nh] = k
+            nh += 1
+            if v[k] < -tiny:
+                approaching = True
+    if approaching:
+        b, lam = ws.c[RHS], ws.c[LAM]
+        for i in range(nh):
+            k = hit[i]
+            e = p[model.e_slot] if k < model.n_wall else p[model.e_ground_slot]
+            b[i] = v[k] + (e * v[k] if v[k] < -vrest else 0.0)
+        contact_matrix(jac, winv, hit, np.int64(nh), A)
+        solve_lcp(A, b, np.int64(nh), lam, ws)
+        for d in range(n):
+            s = 0.0
+            for i in range(nh):
+                s += jac[hit[i], d] * lam[i]
+            qd[d] += winv[d] * s
+        for i in range(nh):
+            if lam[i] * A[i, i] > tiny:
+                n_ev = log_event(t, hit[i], np.int64(IMPULSE), log, n_ev)
+        model.gap_rate(t, q, qd, p, v)
+    # Contacts closed and (now) at rest: which of them carry a force?
+    cand = ws.k[CAND]
+    c = 0
+    for i in range(m):
+        if abs(v[near[i]]) < vrest:
+            cand[c] = near[i]
+            c += 1
+    a = ws.n[ACC]
+    model.accel(t, q, qd, p, a)
+    newrest = ws.k[NEWREST]
+    for k in range(C):
+        newrest[k] = 0
+    if c > 0:
+        model.gap_bias(t, q, qd, p, bias)
+        contact_matrix(jac, winv, cand, np.int64(c), A)
+        w0, force = ws.c[RHS], ws.c[LAM]
+        for i in range(c):
+            k = cand[i]
+            s = bias[k]
+            for d in range(n):
+                s += jac[k, d] * a[d]
+            w0[i] = s
+        solve_lcp(A, w0, np.int64(c), force, ws)
+        for i in range(c):
+            if force[i] > 0.0:
+                newrest[cand[i]] = 1
+    for k in range(C):
+        if newrest[k] and not rest[k]:
+            n_ev = log_event(t, k, np.int64(REST), log, n_ev)
+        elif rest[k] and not newrest[k]:
+            n_ev = log_event(t, k, np.int64(RELEASE), log, n_ev)
+        rest[k] = newrest[k]
+    m = rest_index(rest, ws.k[RIDX])
+    if m > 0:
+        project_rest(model, t, q, qd, p, m, ws)
+    return n_ev, m

@@ -1,0 +1,161 @@
+"""The engine's vocabulary: status codes, event kinds, tolerance slots, and its records.
+
+A *model* reaches the engine as one :class:`Model` record: its sizes and
+flags as integers and its generated functions as first-class function values
+(Numba ``cfunc`` objects of the signatures below). Every model has the same
+record type, so the engine is compiled once, for all of them, and a model
+brings only its own functions.
+
+Scratch arrays live in one :class:`Scratch` record, allocated once per call of
+an entry point (:func:`scratch`), never inside the loop.
+"""
+
+from collections import namedtuple
+
+import numpy as np
+from numba import njit
+from numba.core import types
+
+# ---------------------------------------------------------------------------
+# status codes of the loops
+DONE = 0
+IMPACT_LOG_FULL = 1     #: the event log is full: the caller grows it and calls again from the step returned
+NONFINITE = 2
+STALLED = 3
+
+# kinds of contact events in the event log
+IMPULSE = 0             #: an impulse acted on the contact
+REST = 1                #: the contact became persistent (gap held at zero)
+RELEASE = 2             #: a persistent contact let go (its force would have pulled)
+
+#: events allowed inside one step before the run stops with STALLED
+MAX_EVENTS = 10000
+#: largest contact set solved exactly by enumeration; larger ones use Gauss-Seidel
+MAX_ENUMERATED = 10
+
+# ---------------------------------------------------------------------------
+# slots of the tolerance array (filled by jackbox.api.tolerances)
+T_GAP = 0       #: contacts closer than this take part in impacts and resting contact
+T_EVENT = 1     #: an event is located where gap = -T_EVENT / 2 (round-off guard)
+T_VREST = 2     #: normal speeds below this are "at rest": plastic impact, then persistent
+T_BOXV = 3      #: bound on the speed of any point of a prescribed box
+T_WALL = 4      #: the box's inner half-width L (broad phase)
+T_RJACK = 5     #: radius of the jack's bounding circle about its centre (broad phase)
+T_RBOX = 6      #: radius of the box's outer bounding circle (broad phase, ground)
+T_SPEED = 7     #: T_SPEED + i: bound on |d gap / d qd_i| (1 or a radius); the last slots
+
+# ---------------------------------------------------------------------------
+# the model record
+
+F8 = types.float64
+I8 = types.int64
+V1 = types.Array(F8, 1, "C")            #: a vector (q, qd, p, gaps ...)
+V2 = types.Array(F8, 2, "C")            #: a matrix (phi_q)
+I1 = types.Array(I8, 1, "C")
+
+#: the signature of each function a model brings (the generated ones, then the hot path)
+SIGNATURES = {
+    "inverse_mass": types.void(V1, V1),                       # (p, out)
+    "accel": types.void(F8, V1, V1, V1, V1),                  # (t, q, qd, p, out)
+    "phi": types.void(F8, V1, V1, V1),                        # (t, q, p, out)
+    "phi_q": types.void(F8, V1, V1, V2),                      # (t, q, p, out)
+    "phi_t": types.void(F8, V1, V1, V1),                      # (t, q, p, out)
+    "gap_rate": types.void(F8, V1, V1, V1, V1),               # (t, q, qd, p, out)
+    "gap_bias": types.void(F8, V1, V1, V1, V1),               # (t, q, qd, p, out)
+    "energy": F8(F8, V1, V1, V1),                             # (t, q, qd, p)
+    "box_motion": types.void(F8, V1, V1),                     # (t, p, out)
+    # the hot path (jackbox/engine/flight.py, compiled with the model)
+    "clearance": F8(F8, V1, V1, V1),                          # (t, q, p, tol)
+    "fly": types.Tuple((I8, F8))(F8, F8, I8, I8, V1, V1, V1, V1, F8, V1, V1),
+}
+#: integer fields of the model record, then its functions
+SIZES = ("n_dof", "n_contact", "n_wall", "e_slot", "e_ground_slot", "prescribed", "has_ground")
+Model = namedtuple("Model", SIZES + tuple(SIGNATURES))
+#: Numba's type of every Model record
+ModelType = types.NamedTuple([I8] * len(SIZES) + [types.FunctionType(s) for s in SIGNATURES.values()], Model)
+
+#: recorded samples: time, coordinates and rates (6 columns), energy
+Samples = namedtuple("Samples", ["t", "q", "qd", "energy"])
+SamplesType = types.NamedTuple([V1, V2, V2, V1], Samples)
+#: the event log: time, contact and kind of each event
+Events = namedtuple("Events", ["t", "k", "kind"])
+EventsType = types.NamedTuple([V1, I1, I1], Events)
+
+# ---------------------------------------------------------------------------
+# the loops as function values
+
+#: (model, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec, log, n_ev)
+EXACT = types.UniTuple(I8, 4)(ModelType, V1, V1, I1, V1, V1, F8, F8, I8, I8, I8, I8, SamplesType, I8,
+                              EventsType, I8)
+#: (model, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec, log, n_imp)
+NAIVE = types.UniTuple(I8, 4)(ModelType, V1, V1, V1, F8, F8, I8, I8, I8, I8, SamplesType, I8, EventsType, I8)
+ExactType = types.FunctionType(EXACT)
+NaiveType = types.FunctionType(NAIVE)
+
+# ---------------------------------------------------------------------------
+# scratch
+
+# rows of Scratch.c, (SC, n_contact) floats: gaps at a step's ends and at a trial
+# time, normal speeds at both ends, gap biases, a right-hand side and contact
+# forces, phi_t, the LCP's right-hand side and unknowns, the dense solver's
+# copy, and the forces at both ends of a step
+GA, GB, GS, VA, VB, BIAS, RHS, LAM, VT, LR, LX, R, LAMA, LAMB = range(14)
+SC = 14
+# rows of Scratch.n, (SN, n_dof) floats: the trial state at a step's end, the
+# state at a trial time, diag(M^-1), accelerations, the state at a step's start
+QB, QDB, QS, QDS, WINV, AF, ACC, Q0, QD0 = range(9)
+SN = 9
+# rows of Scratch.k, (SK, n_contact) integers: the persistent contacts, contacts
+# near, hit and at rest, the LCP's active set, the new persistent set, a copy
+RIDX, NEAR, HIT, CAND, IDX, NEWREST, REST0 = range(7)
+SK = 7
+
+Scratch = namedtuple("Scratch", ["work", "jac", "c", "n", "k", "A", "sub", "lu", "ext", "box"])
+ScratchType = types.NamedTuple([V2, V2, V2, V2, types.Array(I8, 2, "C"), V2, V2, V2, V1, V1], Scratch)
+
+
+@njit(cache=True)
+def scratch(model):
+    """Every scratch array the loops need, sized for the model: allocated once per call."""
+    n, C = model.n_dof, model.n_contact
+    return Scratch(
+        np.zeros((8, n)),           # RK4 stages
+        np.zeros((C, n)),           # phi_q
+        np.zeros((SC, C)),          # rows per contact
+        np.zeros((SN, n)),          # rows per coordinate
+        np.zeros((SK, C), np.int64),  # index lists
+        np.zeros((C, C)),           # a contact matrix
+        np.zeros((C, C)),           # the LCP's sub-matrix
+        np.zeros((C, C)),           # the dense solver's working copy
+        np.zeros(2),                # a cubic's stationary points
+        np.zeros(6),                # a prescribed box's state
+    )
+
+
+# ---------------------------------------------------------------------------
+# the engine's own function values: its heavy stages and its loops, each
+# compiled once (see jackbox.engine.prepare)
+
+#: the integrator's step: (model, t, q, qd, dt, p, q_out, qd_out, m, ws)
+STEP = types.void(ModelType, F8, V1, V1, F8, V1, V1, V1, I8, ScratchType)
+StepType = types.FunctionType(STEP)
+#: the contact update at an event: (model, t, q, qd, p, tol, rest, ws, log, n_ev, vscale) -> (n_ev, m)
+UPDATE = types.UniTuple(I8, 2)(ModelType, F8, V1, V1, V1, V1, I1, ScratchType, EventsType, I8, F8)
+#: the first gap crossing in a step: (model, step, ta, tb, q, qd, p, tol, rest, m, ws) -> time or -1
+CROSSING = F8(ModelType, StepType, F8, F8, V1, V1, V1, V1, I1, I8, ScratchType)
+#: the first release of a persistent contact in a step: (model, step, ta, tb, q, qd, p, tol, m, ws)
+RELEASE_AT = F8(ModelType, StepType, F8, F8, V1, V1, V1, V1, I8, ScratchType)
+#: the heavy stages of the exact loop, as function values
+Stages = namedtuple("Stages", ["step", "update", "crossing", "release"])
+StagesType = types.NamedTuple([StepType, types.FunctionType(UPDATE), types.FunctionType(CROSSING),
+                               types.FunctionType(RELEASE_AT)], Stages)
+
+#: the exact loop: (model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every,
+#: out, n_rec, log, n_ev) -> (step reached, n_rec, n_ev, status)
+EXACT = types.UniTuple(I8, 4)(ModelType, StagesType, V1, V1, I1, V1, V1, F8, F8, I8, I8, I8, I8, SamplesType,
+                              I8, EventsType, I8)
+#: the naive loop: (model, step, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec, log,
+#: n_imp)
+NAIVE = types.UniTuple(I8, 4)(ModelType, StepType, V1, V1, V1, F8, F8, I8, I8, I8, I8, SamplesType, I8, EventsType, I8)
+ExactType = types.FunctionType(EXACT)
+NaiveType = types.FunctionType(NAIVE)
