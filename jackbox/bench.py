@@ -94,6 +94,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="tiny sizes, to check that the benchmark runs (its figures mean little)")
     parser.add_argument("--no-cold", action="store_true",
                         help="skip the cold and warm start-up (new processes, a fresh kernel cache each)")
+    parser.add_argument("--compile", action="store_true",
+                        help="instead: the compile-time table (first run, model edit, every feature, warm "
+                             "start; new processes from empty caches), written to compile.md/.json; "
+                             "--repeat defaults to 1 here")
+    parser.add_argument("--against", type=Path, metavar="CHECKOUT", default=None,
+                        help="with --compile: measure another checkout's code side by side")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -104,6 +110,15 @@ def main(argv: list[str] | None = None) -> int:
 
 def run(args) -> int:
     """Measure everything, print the tables, write the files; 1 when an invariant failed."""
+    if getattr(args, "compile", False):
+        from . import compilebench
+
+        argv = ["--repeat", str(args.repeat if "--repeat" in sys.argv else 1)]
+        argv += ["--against", str(args.against)] if args.against else []
+        argv += ["--out", str(args.out if args.out is not None else default_out(False))]
+        return compilebench.main(argv)
+    if args.against is not None:
+        raise JackboxError("--against goes with --compile")
     scenes = list(args.scenes) if args.scenes else list(builtin_scenes())
     unknown = [s for s in scenes if s not in builtin_scenes()]
     if unknown:

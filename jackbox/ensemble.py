@@ -408,9 +408,8 @@ def _execute(fn, spec, chunk, threads, scheduler, dask_local, progress, log, ste
     t_load = time.perf_counter()
     kind = "chaos" if spec.renorm_steps else "ensemble"
     kernel = _kernel(spec)
-    if log and not numba.config.DISABLE_JIT and not getattr(kernel, loader.ENTRY[kind]).signatures \
-            and not loader.is_cached(kernel, kind):
-        log(f"compiling the {kind} kernel of {spec.scene.name} (first use only: about a minute) ...")
+    if log and not numba.config.DISABLE_JIT and not loader.is_cached(kernel, kind):
+        log(f"compiling the engine's {kind} loop (once per machine, for every scene) ...")
     compiled = loader.compile_kernel(kernel, kind)
     load_seconds = time.perf_counter() - t_load
     if chunk is None:

@@ -259,7 +259,8 @@ class Kernel:
     :mod:`jackbox.engine.loop` and :mod:`jackbox.engine.members`) and pass the
     model record first. The model's constants (``N_DOF``, ``N_CONTACT`` ...)
     and plain functions (``phi``, ``accel`` ... for Python callers) are
-    attributes; :meth:`jit` gives a Numba-compiled one.
+    attributes, and so are the engine's (``DONE``, ``T_GAP`` ...); :meth:`jit`
+    gives a Numba-compiled model function.
     """
 
     def __init__(self, module: ModuleType):
@@ -275,7 +276,9 @@ class Kernel:
     def __getattr__(self, name):
         if name.startswith("__"):
             raise AttributeError(name)
-        return getattr(self.module, name)
+        if hasattr(self.module, name):
+            return getattr(self.module, name)
+        return getattr(engine, name)        # status codes, event kinds, tolerance slots
 
     def jit(self, name: str):
         """The model function `name` compiled by Numba (for Python callers: tests, benchmarks)."""
@@ -424,7 +427,8 @@ def is_cached(kernel: Kernel, method: str) -> bool:
         return True
     folder = engine.cache.engine_cache_path()
     loop_fn = engine.LOOPS[LOOP[method]][0]
-    return folder is not None and all(any(folder.glob(f"*.{name}-*.nbi")) for name in (ENTRY[method][0], loop_fn))
+    return folder is not None and all(any(folder.glob(f"*.{name}-*.nbi"))
+                                      for name in (ENTRY[method][0], loop_fn))
 
 
 def _numba_files(path: Path) -> list[Path]:
