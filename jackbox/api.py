@@ -118,7 +118,7 @@ def check_memory(nbytes: int, what: str, remedy: str) -> None:
 
 
 def tolerances(run: Run, kernel) -> np.ndarray:
-    """The tolerance array of the exact method (slots ``T_*`` of jackbox/kernel.py).
+    """The tolerance array of the exact method (slots ``T_*`` of jackbox/engine/records.py).
 
     Lengths scale with the box's inner half-size L: contacts closer than 1e-9 L
     take part in an impact; events are located where a gap is -0.5e-12 L

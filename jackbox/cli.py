@@ -614,16 +614,17 @@ def cmd_cache(args) -> int:
     files = [f for f in folder.rglob("*") if f.is_file()] if folder.is_dir() else []
     size = sum(f.stat().st_size for f in files)
     if args.action == "clear":
-        for part in ("models", "kernels"):      # only what jackbox writes there
+        for part in ("models", "kernels", "engine"):      # only what jackbox writes there
             if (folder / part).is_dir():
                 shutil.rmtree(folder / part)
         print(f"cleared    {folder} ({len(files)} files, {size / 2**20:.1f} MiB)")
         return 0
     models = len(list(folder.glob("models/*.py")))
     kernels = len(list(folder.glob("kernels/*.py")))
+    engines = len([p for p in folder.glob("engine/*") if p.is_dir()])
     print(f"cache      {folder}{'' if folder.is_dir() else ' (not created yet)'}")
-    print(f"holds      {models} generated models, {kernels} kernel modules, {len(files)} files, "
-          f"{size / 2**20:.1f} MiB")
+    print(f"holds      {models} generated models, {kernels} kernel modules (one per model), "
+          f"{engines} engine build(s), {len(files)} files, {size / 2**20:.1f} MiB")
     return 0
 
 

@@ -92,7 +92,7 @@ class Code:
         cache = work / "cache-b"
         every = (self.run(cache, out, "run", "shaken", "--no-plots", *SHORT)
                  + self.run(cache, out, "ensemble", "shaken", "--n", "8", "--perturb", "theta_jack=1e-6", *SHORT)
-                 + self.run(cache, out, "chaos", "shaken", "--n", "4", *SHORT))
+                 + self.run(cache, out, "chaos", "shaken", "--n", "4", "--renorm", "0.01", *SHORT))
         return {"first_run": first, "model_edit": edit, "every_feature": every, "warm_start": warm}
 
 

@@ -4,7 +4,7 @@ The symbolic model of :mod:`codegen.model` is turned into numeric functions
 with ``sympy.lambdify`` (no cse, no Numba, no generated file), and the run is
 plain Python and numpy: ``qdd = solve(M, f)``, the classical RK4 tableau, and
 the impact LCP by trying every active set with ``numpy.linalg``. Tests hold
-the generated functions and the fused kernel against it.
+the generated functions and the compiled engine against it.
 
     traj = jackbox.reference.simulate("shaken", t_end=0.5)                  # method "naive"
     traj = jackbox.reference.simulate("shaken", t_end=0.5, method="exact")  # scipy

@@ -1,8 +1,8 @@
 """Compiled once, never stale: Numba's cache is reused by a second process and can
 never serve machine code for source that has changed since it was compiled.
 
-Caching does not depend on the loop, so these tests compile the cheapest one, the
-naive method's (about 6 s from an empty cache against 25 s for the exact loop).
+Caching does not depend on the loop, so most of these tests run the cheapest one,
+the naive method's; the hot-path test needs the exact loop (it is the one that flies).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The fused kernel against the slow reference, and the invariants of its physics."""
+"""The compiled engine against the slow reference, and the invariants of its physics."""
 
 from __future__ import annotations
 
