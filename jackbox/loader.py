@@ -257,10 +257,10 @@ class Kernel:
 
     The entry points keep the positional arrays of the loops' callers (see
     :mod:`jackbox.engine.loop` and :mod:`jackbox.engine.members`) and pass the
-    model record first. The model's constants (``N_DOF``, ``N_CONTACT`` ...)
-    and plain functions (``phi``, ``accel`` ... for Python callers) are
-    attributes, and so are the engine's (``DONE``, ``T_GAP`` ...); :meth:`jit`
-    gives a Numba-compiled model function.
+    model and the loops first, as one table (:meth:`table`). The model's
+    constants (``N_DOF``, ``N_CONTACT`` ...) and plain functions (``phi``,
+    ``accel`` ... for Python callers) are attributes, and so are the engine's
+    (``DONE``, ``T_GAP`` ...); :meth:`jit` gives a Numba-compiled model function.
     """
 
     def __init__(self, module: ModuleType):
@@ -271,6 +271,7 @@ class Kernel:
             module.N_DOF, module.N_CONTACT, module.N_WALL_CONTACT, module.E_SLOT, module.E_GROUND_SLOT,
             int(module.PRESCRIBED), int(module.HAS_GROUND), *(fns[name] for name in engine.SIGNATURES))
         self._jitted: dict = {}
+        self._tables: dict = {}
         self._cache = module.CACHE     # reported by the first compile_kernel, "memory" after it
 
     def __getattr__(self, name):
@@ -292,33 +293,36 @@ class Kernel:
         """Whether every model function was loaded from Numba's cache (none compiled in this process)."""
         return all(getattr(fn, "cache_hits", 0) for fn in self.module.COMPILED.values())
 
+    def table(self, loops=("exact",)):
+        """The model and the engine's loops as the one array the entry points take (made once per kernel)."""
+        if loops not in self._tables:
+            self._tables[loops] = engine.table(self.record, loops)
+        return self._tables[loops]
+
     def integrate_exact(self, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every,
                         rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, ev_kind, n_ev):
         return engine.entry("run_exact")(
-            engine.compiled_loop("exact"), self.record, engine.stages(), q, qd, rest, p, tol, float(t0), float(dt), i_begin, i_end,
-            n_total, record_every, engine.Samples(rec_t, rec_q, rec_qd, rec_energy), n_rec,
-            engine.Events(ev_t, ev_k, ev_kind), n_ev)
+            self.table(), q, qd, rest, p, tol, float(t0), float(dt), i_begin, i_end, n_total, record_every,
+            rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, ev_kind, n_ev)
 
     def integrate(self, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every,
                   rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, n_imp):
         kind = np.zeros(ev_t.shape[0], np.int64)
         return engine.entry("run_naive")(
-            engine.compiled_loop("naive"), self.record, engine.compiled_loop("step"), q, qd, p, float(t0),
-            float(dt), i_begin, i_end, n_total, record_every, engine.Samples(rec_t, rec_q, rec_qd, rec_energy), n_rec,
-            engine.Events(ev_t, ev_k, kind), n_imp)
+            self.table(("naive",)), q, qd, p, float(t0), float(dt), i_begin, i_end, n_total, record_every,
+            rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, kind, n_imp)
 
     def run_members(self, *args):
-        return engine.entry("run_members")(self.record, engine.compiled_loop("exact"), engine.stages(), *args)
+        return engine.entry("run_members")(self.table(), *args)
 
     def run_twin_members(self, *args):
-        return engine.entry("run_twin_members")(self.record, engine.compiled_loop("exact"), engine.stages(),
-                                                *args)
+        return engine.entry("run_twin_members")(self.table(), *args)
 
     def start_gaps(self, Q0, P):
-        return engine.entry("start_gaps")(self.record, Q0, P)
+        return engine.entry("start_gaps")(self.table(()), Q0, P)
 
     def box_speed_bound(self, p, t_end, n_samples, r_box):
-        return engine.entry("box_speed_bound")(self.record, p, float(t_end), int(n_samples), float(r_box))
+        return engine.entry("box_speed_bound")(self.table(()), p, float(t_end), int(n_samples), float(r_box))
 
 
 def load_kernel(model_file: Path, flight_text: str | None = None) -> Kernel:

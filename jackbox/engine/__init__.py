@@ -27,28 +27,27 @@ from __future__ import annotations
 import warnings
 
 import numba
+import numpy as np
 from numba.core import types
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
 from . import cache
-from .records import (StepType, CROSSING, EXACT, NAIVE, RELEASE_AT, STEP, UPDATE, ExactType, NaiveType, Stages,
+from .records import (TABLE, StepType, CROSSING, EXACT, NAIVE, RELEASE_AT, STEP, UPDATE, ExactType, NaiveType, Stages,
                       StagesType, DONE, IMPACT_LOG_FULL, IMPULSE, MAX_EVENTS, NONFINITE, RELEASE, REST, STALLED,
                       T_BOXV, T_EVENT, T_GAP, T_RBOX, T_RJACK, T_SPEED, T_VREST, T_WALL, EventsType,
-                      Events, F8, I1, I8, Model, ModelType, Samples, SamplesType, SIGNATURES, SIZES, V1, V2)
+                      Events, F8, I1, I2, I8, Model, ModelType, Samples, SamplesType, SIGNATURES, SIZES, V1, V2)
 
 cache.install()
 
 V3 = types.Array(F8, 3, "C")
 #: module and argument types of every njit entry point (each takes the loop it runs first)
 ENTRIES = {
-    "run_exact": ("loop", (ExactType, ModelType, StagesType, V1, V1, I1, V1, V1, F8, F8, I8, I8, I8, I8, SamplesType, I8,
-                           EventsType, I8)),
-    "run_naive": ("loop", (NaiveType, ModelType, StepType, V1, V1, V1, F8, F8, I8, I8, I8, I8, SamplesType, I8,
-                           EventsType, I8)),
-    "run_members": ("members", (ModelType, ExactType, StagesType, V2, V2, V2, V2, F8, I8, I1, V3, V3, V2, V2, V2)),
-    "run_twin_members": ("members", (ModelType, ExactType, StagesType, V2, V2, V2, V2, V2, V2, F8, I8, I8, V1, V2, V2)),
-    "start_gaps": ("members", (ModelType, V2, V2)),
-    "box_speed_bound": ("members", (ModelType, V1, F8, I8, F8)),
+    "run_exact": ("loop", (I2, V1, V1, I1, V1, V1, F8, F8, I8, I8, I8, I8, V1, V2, V2, V1, I8, V1, I1, I1, I8)),
+    "run_naive": ("loop", (I2, V1, V1, V1, F8, F8, I8, I8, I8, I8, V1, V2, V2, V1, I8, V1, I1, I1, I8)),
+    "run_members": ("members", (I2, V2, V2, V2, V2, F8, I8, I1, V3, V3, V2, V2, V2)),
+    "run_twin_members": ("members", (I2, V2, V2, V2, V2, V2, V2, F8, I8, I8, V1, V2, V2)),
+    "start_gaps": ("members", (I2, V2, V2)),
+    "box_speed_bound": ("members", (I2, V1, F8, I8, F8)),
 }
 #: the engine's function values: name -> (module, function, signature, what it needs compiled first)
 LOOPS = {
@@ -63,7 +62,7 @@ _loops: dict = {}
 
 __all__ = ["DONE", "IMPACT_LOG_FULL", "NONFINITE", "STALLED", "IMPULSE", "REST", "RELEASE", "MAX_EVENTS",
            "T_GAP", "T_EVENT", "T_VREST", "T_BOXV", "T_WALL", "T_RJACK", "T_RBOX", "T_SPEED",
-           "Model", "Samples", "Events", "SIGNATURES", "SIZES", "ENTRIES", "LOOPS", "entry", "compiled_loop", "prepare"]
+           "Model", "Samples", "Events", "SIGNATURES", "SIZES", "ENTRIES", "LOOPS", "entry", "compiled_loop", "prepare", "table"]
 
 
 def _dispatcher(name: str):
@@ -86,6 +85,43 @@ def compiled_loop(name: str):
     if name not in _loops:
         prepare((), (name,))
     return _loops[name]
+
+
+def table(model: Model, loops=("exact",)) -> np.ndarray:
+    """The array every entry point takes: the model, then the stages and loops it needs (see ``TABLE``).
+
+    Row 0: integers as they are, functions as their C addresses (0 for a loop
+    or stage not asked for, which must then not be called); row 1: the
+    functions' native addresses. With Numba's JIT off, a tuple of the values.
+    """
+    wanted = set(loops).union(*(LOOPS[name][3] for name in loops))
+    values = (*model, *(compiled_loop(name) if name in wanted else 0 for name in TABLE[len(model):]))
+    if numba.config.DISABLE_JIT:
+        return values
+    out = np.zeros((2, len(values)), np.int64)
+    for i, value in enumerate(values):
+        if isinstance(value, (int, np.integer)):
+            out[0, i] = value
+        else:
+            out[0, i], out[1, i] = value.address, native_address(value)
+    return out
+
+
+def native_address(fn) -> int:
+    """Address of a cfunc's native function (the one its C wrapper calls), or 0 if it cannot be found.
+
+    Numba keeps it in the cfunc's library under the wrapper's name without the
+    "cfunc." prefix (numba/core/ccallback.py, funcdesc.py).
+    """
+    prefix = "cfunc."
+    name = getattr(fn, "_wrapper_name", None) or ""
+    library = getattr(fn, "_library", None)
+    if not name.startswith(prefix) or library is None:
+        return 0
+    try:
+        return int(library.get_pointer_to_function(name[len(prefix):]) or 0)
+    except Exception:
+        return 0
 
 
 def stages() -> Stages:

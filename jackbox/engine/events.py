@@ -16,7 +16,7 @@ import numpy as np
 from numba import njit
 
 from .gaps import hermite, hermite_extrema, step_reach
-from .modes import contact_accel
+from .modes import accel, contact_accel
 from .records import AF, GA, GB, GS, LAM, LAMA, LAMB, QB, QDB, QDS, QS, T_EVENT, VA, VB
 
 # kinds of event function (passed as np.int64: a bare literal would make Numba
@@ -39,7 +39,7 @@ def event_value(model, step, kind, pos, ta, q, qd, s, p, tol, m, ws):
         g = ws.c[GS]
         model.phi(s, qs, p, g)
         return g[pos] + 0.5 * tol[T_EVENT]
-    contact_accel(model, s, qs, qds, p, m, ws.n[AF], ws)
+    accel(model, s, qs, qds, p, m, ws.n[AF], ws)
     return ws.c[LAM, pos]
 
 

@@ -10,7 +10,7 @@ step 2-3x slower.
 
 from numba import njit
 
-from .modes import contact_accel
+from .modes import accel
 
 
 @njit(cache=True)
@@ -24,19 +24,19 @@ def rk4(model, t, q, qd, dt, p, q_out, qd_out, m, ws):
     w = ws.work
     qs, vs, a1, a2, a3, a4, v2, v3 = w[0], w[1], w[2], w[3], w[4], w[5], w[6], w[7]
     h2 = 0.5 * dt
-    contact_accel(model, t, q, qd, p, m, a1, ws)
+    accel(model, t, q, qd, p, m, a1, ws)
     for i in range(n):
         qs[i] = q[i] + h2 * qd[i]
         v2[i] = qd[i] + h2 * a1[i]
-    contact_accel(model, t + h2, qs, v2, p, m, a2, ws)
+    accel(model, t + h2, qs, v2, p, m, a2, ws)
     for i in range(n):
         qs[i] = q[i] + h2 * v2[i]
         v3[i] = qd[i] + h2 * a2[i]
-    contact_accel(model, t + h2, qs, v3, p, m, a3, ws)
+    accel(model, t + h2, qs, v3, p, m, a3, ws)
     for i in range(n):
         qs[i] = q[i] + dt * v3[i]
         vs[i] = qd[i] + dt * a3[i]
-    contact_accel(model, t + dt, qs, vs, p, m, a4, ws)
+    accel(model, t + dt, qs, vs, p, m, a4, ws)
     h6 = dt / 6.0
     for i in range(n):
         q_out[i] = q[i] + h6 * (qd[i] + 2.0 * v2[i] + 2.0 * v3[i] + vs[i])

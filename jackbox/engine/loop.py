@@ -25,7 +25,8 @@ from numba import njit
 from .impact import resolve_impacts
 from .modes import project_rest, rest_index
 from .records import (DONE, GA, GB, IMPACT_LOG_FULL, NONFINITE, Q0, QB, QD0, QDB, QDS, QS, REST0, RIDX,
-                      STALLED, MAX_EVENTS, T_EVENT, scratch)
+                      STALLED, MAX_EVENTS, T_EVENT, EXACT_AT, MODEL_AT, NAIVE_AT, STAGES_AT, ExactType, ModelType,
+                      NaiveType, StagesType, Events, Samples, borrow, from_table, keep, scratch)
 from .gaps import step_reach
 
 
@@ -54,7 +55,16 @@ def integrate(model, step, q, qd, p, t0, dt, i_begin, i_end, n_total, record_eve
     index ``n_rec``; impulses are logged into ``log`` from ``n_imp``.
     Returns ``(step reached, n_rec, n_imp, status)``.
     """
-    ws = scratch(model)
+    own = scratch(model)
+    result = naive_steps(model, step, borrow(q), borrow(qd), borrow(p), t0, dt, i_begin, i_end, n_total,
+                         record_every, borrow(out), n_rec, borrow(log), n_imp, borrow(own))
+    keep(own)
+    return result
+
+
+@njit(cache=True)
+def naive_steps(model, step, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec, log, n_imp, ws):
+    """The body of :func:`integrate`, on borrowed views (:func:`~.records.borrow`) and its scratch ``ws``."""
     gap = ws.c[GA]
     if i_begin == 0 and n_rec == 0:   # (not again when resumed after a full log)
         record(model, t0, q, qd, p, n_rec, out, ws.box)
@@ -161,9 +171,22 @@ def integrate_exact(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, 
     rest: (n_contact,) 0/1 persistent contacts, carried between calls. tol: the
     ``T_*`` slots. log: the event log (time, contact, IMPULSE/REST/RELEASE).
     Returns ``(step reached, n_rec, n_ev, status)``.
+
+    Every array goes on to the stages as a borrowed view: the arguments live
+    as long as this call, the scratch as long as ``keep`` holds it.
     """
+    own = scratch(model)
+    result = exact_steps(model, stages, borrow(q), borrow(qd), borrow(rest), borrow(p), borrow(tol), t0, dt,
+                         i_begin, i_end, n_total, record_every, borrow(out), n_rec, borrow(log), n_ev, borrow(own))
+    keep(own)
+    return result
+
+
+@njit(cache=True)
+def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec,
+                log, n_ev, ws):
+    """The body of :func:`integrate_exact`, on borrowed views and its scratch ``ws``."""
     n, C = model.n_dof, model.n_contact
-    ws = scratch(model)
     m = rest_index(rest, ws.k[RIDX])
     if i_begin == 0 and n_rec == 0:   # (not again when resumed after a full log)
         n_ev, m = stages.update(model, t0, q, qd, p, tol, rest, ws, log, n_ev, 1.0)
@@ -251,13 +274,25 @@ def integrate_exact(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, 
 
 
 @njit(cache=True)
-def run_exact(exact, model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every,
-              out, n_rec, log, n_ev):
-    """:func:`integrate_exact` for Python callers, through its compiled function value ``exact``."""
-    return exact(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec, log, n_ev)
+def run_exact(table, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every,
+              rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, ev_kind, n_ev):
+    """:func:`integrate_exact` for Python callers: the model, the stages and the loop come in ``table``.
+
+    The samples (rec_*) and the event log (ev_*) come as arrays; records of
+    them, like records of function values, would cost Numba a type inference
+    in Python on every call.
+    """
+    exact = from_table(table, EXACT_AT, ExactType)
+    return exact(from_table(table, MODEL_AT, ModelType), from_table(table, STAGES_AT, StagesType), q, qd, rest, p,
+                 tol, t0, dt, i_begin, i_end, n_total, record_every, Samples(rec_t, rec_q, rec_qd, rec_energy), n_rec,
+                 Events(ev_t, ev_k, ev_kind), n_ev)
 
 
 @njit(cache=True)
-def run_naive(naive, model, step, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec, log, n_imp):
-    """:func:`integrate` for Python callers, through its compiled function value ``naive``."""
-    return naive(model, step, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec, log, n_imp)
+def run_naive(table, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every,
+              rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, ev_kind, n_imp):
+    """:func:`integrate` for Python callers, like :func:`run_exact`."""
+    naive = from_table(table, NAIVE_AT, NaiveType)
+    step = from_table(table, STAGES_AT, StagesType).step
+    return naive(from_table(table, MODEL_AT, ModelType), step, q, qd, p, t0, dt, i_begin, i_end, n_total,
+                 record_every, Samples(rec_t, rec_q, rec_qd, rec_energy), n_rec, Events(ev_t, ev_k, ev_kind), n_imp)

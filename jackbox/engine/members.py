@@ -12,7 +12,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .records import DONE, IMPACT_LOG_FULL, IMPULSE, Events, Samples
+from .records import (DONE, EXACT_AT, IMPACT_LOG_FULL, IMPULSE, MODEL_AT, STAGES_AT, Events, ExactType, ModelType,
+                      Samples, StagesType, from_table)
 
 #: tally slots of one member: impulses so far, time of the first one (NaN if none)
 TALLY_IMPULSES = 0
@@ -97,8 +98,11 @@ def run_member(model, exact, stages, q0, qd0, p, tol, dt, n_steps, sample_steps,
 
 
 @njit(cache=True, parallel=True)
-def run_members(model, exact, stages, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
-    """:func:`run_member` for every row of Q0, QD0, P, TOL, in parallel (prange)."""
+def run_members(table, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
+    """:func:`run_member` for every row of Q0, QD0, P, TOL, in parallel (prange); the model and loops in ``table``."""
+    model = from_table(table, MODEL_AT, ModelType)
+    exact = from_table(table, EXACT_AT, ExactType)
+    stages = from_table(table, STAGES_AT, StagesType)
     for j in prange(Q0.shape[0]):
         run_member(model, exact, stages, Q0[j], QD0[j], P[j], TOL[j], dt, n_steps, sample_steps, samp_q[j], samp_qd[j],
                    fin_q[j], fin_qd[j], fin[j])
@@ -165,16 +169,20 @@ def run_twins(model, exact, stages, q0, qd0, dq, dqd, p, tol, dt, n_steps, renor
 
 
 @njit(cache=True, parallel=True)
-def run_twin_members(model, exact, stages, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin):
-    """:func:`run_twins` for every member, in parallel (prange)."""
+def run_twin_members(table, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin):
+    """:func:`run_twins` for every member, in parallel (prange); the model and loops in ``table``."""
+    model = from_table(table, MODEL_AT, ModelType)
+    exact = from_table(table, EXACT_AT, ExactType)
+    stages = from_table(table, STAGES_AT, StagesType)
     for j in prange(Q0.shape[0]):
         run_twins(model, exact, stages, Q0[j], QD0[j], DQ[j], DQD[j], P[j], TOL[j], dt, n_steps, renorm_steps, scale,
                   stretch[j], fin[j])
 
 
 @njit(cache=True)
-def box_speed_bound(model, p, t_end, n_samples, r_box):
+def box_speed_bound(table, p, t_end, n_samples, r_box):
     """Largest speed of any point of a prescribed box over [0, t_end], sampled at n_samples times."""
+    model = from_table(table, MODEL_AT, ModelType)
     speed = 0.0
     box = np.empty(6)
     for j in range(n_samples):
@@ -184,8 +192,9 @@ def box_speed_bound(model, p, t_end, n_samples, r_box):
 
 
 @njit(cache=True)
-def start_gaps(model, Q0, P):
+def start_gaps(table, Q0, P):
     """(n,) the smallest gap of each member's start state (negative: inside a wall)."""
+    model = from_table(table, MODEL_AT, ModelType)
     out = np.empty(Q0.shape[0])
     gap = np.empty(model.n_contact)
     for j in range(Q0.shape[0]):

@@ -33,6 +33,20 @@ def rest_index(rest, ridx):
     return m
 
 
+@njit(cache=True, inline="always")
+def accel(model, t, q, qd, p, m, a, ws):
+    """Accelerations into a: the model's own (m = 0), or with the m persistent contacts held.
+
+    Inlined where it is called, so that a free step reaches the model's
+    function in one call: through :func:`contact_accel`, which is not
+    inlined, each call would pass on (and count references to) a dozen arrays.
+    """
+    if m == 0:
+        model.accel(t, q, qd, p, a)
+    else:
+        contact_accel(model, t, q, qd, p, m, a, ws)
+
+
 @njit(cache=True)
 def contact_accel(model, t, q, qd, p, m, a, ws):
     """Accelerations with the m persistent contacts (``ws.k[RIDX]``) held closed.

@@ -13,8 +13,9 @@ an entry point (:func:`scratch`), never inside the loop.
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
-from numba.core import types
+from numba import config, njit
+from numba.core import cgutils, types
+from numba.extending import intrinsic
 
 # ---------------------------------------------------------------------------
 # status codes of the loops
@@ -52,6 +53,7 @@ I8 = types.int64
 V1 = types.Array(F8, 1, "C")            #: a vector (q, qd, p, gaps ...)
 V2 = types.Array(F8, 2, "C")            #: a matrix (phi_q)
 I1 = types.Array(I8, 1, "C")
+I2 = types.Array(I8, 2, "C")            #: a table (see from_table)
 
 #: the signature of each function a model brings (the generated ones, then the hot path)
 SIGNATURES = {
@@ -159,3 +161,129 @@ EXACT = types.UniTuple(I8, 4)(ModelType, StagesType, V1, V1, I1, V1, V1, F8, F8,
 NAIVE = types.UniTuple(I8, 4)(ModelType, StepType, V1, V1, V1, F8, F8, I8, I8, I8, I8, SamplesType, I8, EventsType, I8)
 ExactType = types.FunctionType(EXACT)
 NaiveType = types.FunctionType(NAIVE)
+
+
+# ---------------------------------------------------------------------------
+# references: the loops hand their stages views that hold none
+
+
+@intrinsic
+def borrow(typingctx, x):
+    """A view of ``x`` (an array, or a record of arrays) that holds no reference to its memory.
+
+    Numba counts references to every array it passes: a function that is not
+    inlined into its caller (each function value, each stage) adds one to
+    each array argument on entry and drops it on return, two atomic
+    operations per array per call, which cost the first version of this
+    engine about half its step time. A borrowed view carries no memory
+    record, so those operations see nothing to count. Only for what the
+    caller keeps alive for as long as the view is used: a loop's own
+    arguments, or scratch it holds with :func:`keep`.
+    """
+    if isinstance(x, types.Array):
+        parts = None
+    elif isinstance(x, types.BaseTuple) and all(isinstance(t, types.Array) for t in x):
+        parts = tuple(x)
+    else:
+        return None
+
+    def codegen(context, builder, signature, args):
+        def unowned(ty, value):
+            view = cgutils.create_struct_proxy(ty)(context, builder, value=value)
+            view.meminfo = cgutils.get_null_value(view.meminfo.type)
+            view.parent = cgutils.get_null_value(view.parent.type)
+            return view._getvalue()
+
+        if parts is None:
+            return unowned(x, args[0])
+        value = args[0]
+        for i, ty in enumerate(parts):
+            value = builder.insert_value(value, unowned(ty, builder.extract_value(value, i)), i)
+        return value
+
+    return x(x), codegen
+
+
+@intrinsic
+def keep(typingctx, x):
+    """Use ``x`` here and do nothing: it stays alive (Numba drops a value after its last use) until this point."""
+    def codegen(context, builder, signature, args):
+        return context.get_dummy_value()
+
+    return types.none(x), codegen
+
+
+# ---------------------------------------------------------------------------
+# the table: a model and the engine's function values as one int64 array
+
+#: what each column of a table holds: the model's integers and functions, the stages, the loops
+TABLE = SIZES + tuple(SIGNATURES) + Stages._fields + ("exact", "naive")
+#: first columns of the parts of a table
+MODEL_AT, STAGES_AT, EXACT_AT, NAIVE_AT = 0, len(Model._fields), TABLE.index("exact"), TABLE.index("naive")
+
+
+@intrinsic
+def from_table(typingctx, table, start, kind):
+    """The record (or function value) of type ``kind`` whose fields are the table's slots from ``start`` on.
+
+    Python hands the engine a model as a (2, len(TABLE)) int64 array rather
+    than as a record of function values: Numba works out the type of such a
+    record argument in Python, on every call (about 0.5 ms for a model and the
+    stages, more than a whole run of a few thousand steps), and that of an
+    array in C. Row 0 holds the integers and each function's C address, row 1
+    each function's native address (Numba's own calling convention, 0 where
+    unknown): a call through it skips the C wrapper's second call.
+    """
+    target = kind.instance_type
+    if isinstance(target, types.FunctionType):
+        parts = None
+    elif isinstance(target, types.BaseNamedTuple) and all(isinstance(t, (types.FunctionType, types.Integer))
+                                                          for t in target):
+        parts = tuple(target)
+    else:
+        return None
+
+    def codegen(context, builder, signature, args):
+        words = context.make_array(table)(context, builder, value=args[0])
+        data = words.data
+        width = builder.extract_value(words.shape, 1)
+        base = context.cast(builder, args[1], start, types.intp)
+
+        def slot(i, row=0):
+            at = builder.add(base, context.get_constant(types.intp, i))
+            if row:
+                at = builder.add(at, width)
+            return builder.load(builder.gep(data, [at]))
+
+        def function(ty, i):
+            fn = cgutils.create_struct_proxy(ty)(context, builder)
+            fn.c_addr = builder.inttoptr(slot(i), fn.c_addr.type)
+            fn.py_addr = cgutils.get_null_value(fn.py_addr.type)
+            fn.jit_addr = builder.inttoptr(slot(i, 1), fn.jit_addr.type)
+            return fn._getvalue()
+
+        if parts is None:
+            return function(target, 0)
+        value = cgutils.get_null_value(context.get_value_type(target))
+        for i, ty in enumerate(parts):
+            if isinstance(ty, types.FunctionType):
+                field = function(ty, i)
+            else:
+                field = context.cast(builder, slot(i), I8, ty)
+            value = builder.insert_value(value, field, i)
+        return value
+
+    return target(table, start, kind), codegen
+
+
+if config.DISABLE_JIT:      # the loops as plain Python: nothing is counted, nothing to keep
+    def borrow(x):
+        return x
+
+    def keep(x):
+        return None
+
+    def from_table(table, start, kind):
+        if isinstance(kind, types.FunctionType):
+            return table[start]
+        return kind.instance_class(*table[start:start + len(kind.types)])   # (a tuple of the values)
