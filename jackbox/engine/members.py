@@ -97,12 +97,17 @@ def run_member(model, exact, stages, q0, qd0, p, tol, dt, n_steps, sample_steps,
     fin[4] = i
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def run_members(table, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
-    """:func:`run_member` for every row of Q0, QD0, P, TOL, in parallel (prange); the model and loops in ``table``."""
-    model = from_table(table, MODEL_AT, ModelType)
-    exact = from_table(table, EXACT_AT, ExactType)
-    stages = from_table(table, STAGES_AT, StagesType)
+    """:func:`run_member` for every row of Q0, QD0, P, TOL, in parallel; the model and loops in ``table``."""
+    all_members(from_table(table, MODEL_AT, ModelType), from_table(table, EXACT_AT, ExactType),
+                from_table(table, STAGES_AT, StagesType), Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd,
+                fin_q, fin_qd, fin)
+
+
+# (a prange loop takes its records as arguments: Numba's parfor lowering cannot rebuild one made in the same function)
+@njit(cache=True, parallel=True)
+def all_members(model, exact, stages, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
     for j in prange(Q0.shape[0]):
         run_member(model, exact, stages, Q0[j], QD0[j], P[j], TOL[j], dt, n_steps, sample_steps, samp_q[j], samp_qd[j],
                    fin_q[j], fin_qd[j], fin[j])
@@ -168,12 +173,16 @@ def run_twins(model, exact, stages, q0, qd0, dq, dqd, p, tol, dt, n_steps, renor
     fin[2] = i
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def run_twin_members(table, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin):
-    """:func:`run_twins` for every member, in parallel (prange); the model and loops in ``table``."""
-    model = from_table(table, MODEL_AT, ModelType)
-    exact = from_table(table, EXACT_AT, ExactType)
-    stages = from_table(table, STAGES_AT, StagesType)
+    """:func:`run_twins` for every member, in parallel; the model and loops in ``table``."""
+    all_twins(from_table(table, MODEL_AT, ModelType), from_table(table, EXACT_AT, ExactType),
+              from_table(table, STAGES_AT, StagesType), Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale,
+              stretch, fin)
+
+
+@njit(cache=True, parallel=True)
+def all_twins(model, exact, stages, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin):
     for j in prange(Q0.shape[0]):
         run_twins(model, exact, stages, Q0[j], QD0[j], DQ[j], DQD[j], P[j], TOL[j], dt, n_steps, renorm_steps, scale,
                   stretch[j], fin[j])
