@@ -16,6 +16,7 @@ integrates on floats only and looks at no gap row: the broad phase
 
 from jackbox.engine.broad import bound as _bound
 from jackbox.engine.gaps import speed_bound as _speed_bound
+from jackbox.engine.integrator import NODES as _NODES, SCALE as _SCALE
 from jackbox.engine.records import T_EVENT as _T_EVENT, T_GAP as _T_GAP
 
 #: skip the gap rows of steps whose bounding circles are far from contact
@@ -26,20 +27,24 @@ BROAD_PHASE = True
 def rk4_stages(q, qd, dt, p, ta, tta, tm, ttm, tb, ttb):
     """One classical RK4 step of ``q' = qd, qd' = accel(t, q, qd)`` on tuples.
 
+    The tableau is :mod:`jackbox.engine.integrator`'s (``_NODES``, and the weights in ``rk4_sum_s``:
+    the inner stages share their node, the first and last weights are 1).
     Stage times ta, tm, tb come with their time terms ``tt* = accel_time_s(t*,
-    p)`` (a shaking force's sine, 1/m), computed once per stage time. The
-    tableau is :mod:`jackbox.engine.integrator`'s. Returns ``(q, qd)``.
+    p)`` (a shaking force's sine, 1/m), computed once per stage time.
+    Returns ``(q, qd)``.
     """
-    h2 = 0.5 * dt
+    h2 = _NODES[1] * dt
+    h3 = _NODES[2] * dt
+    h4 = _NODES[3] * dt
     a1 = accel_s(ta, q, qd, p, tta)
     v2 = axpy_s(h2, a1, qd)
     a2 = accel_s(tm, axpy_s(h2, qd, q), v2, p, ttm)
-    v3 = axpy_s(h2, a2, qd)
-    a3 = accel_s(tm, axpy_s(h2, v2, q), v3, p, ttm)
-    v4 = axpy_s(dt, a3, qd)
-    a4 = accel_s(tb, axpy_s(dt, v3, q), v4, p, ttb)
-    h6 = dt / 6.0
-    return rk4_sum_s(q, h6, qd, v2, v3, v4), rk4_sum_s(qd, h6, a1, a2, a3, a4)
+    v3 = axpy_s(h3, a2, qd)
+    a3 = accel_s(tm, axpy_s(h3, v2, q), v3, p, ttm)
+    v4 = axpy_s(h4, a3, qd)
+    a4 = accel_s(tb, axpy_s(h4, v3, q), v4, p, ttb)
+    h = dt / _SCALE
+    return rk4_sum_s(q, h, qd, v2, v3, v4), rk4_sum_s(qd, h, a1, a2, a3, a4)
 
 
 def grid_step(t, t_next, tt, q, qd, dt, p):
@@ -47,7 +52,7 @@ def grid_step(t, t_next, tt, q, qd, dt, p):
 
     Returns ``(q, qd, time terms at t_next)``, so consecutive steps share them.
     """
-    tm = t + 0.5 * dt
+    tm = t + _NODES[1] * dt
     tt_next = accel_time_s(t_next, p)
     qn, vn = rk4_stages(q, qd, dt, p, t, tt, tm, accel_time_s(tm, p), t_next, tt_next)
     return qn, vn, tt_next

@@ -1,16 +1,25 @@
 """The integrator: one classical RK4 step, on arrays, of the dynamics with the persistent contacts held.
 
-The tableau (stage times ``t, t + h/2, t + h/2, t + h``, weights ``1/6, 1/3,
-1/3, 1/6``) is written here for the engine, which works on arrays of any
-model's size. The free-flight hot path (:mod:`jackbox.engine.flight`)
-writes the same tableau once more on tuples, compiled with each model so that
-its state stays in registers: routing free flight through arrays made every
-step 2-3x slower.
+The tableau is written once, here (:data:`NODES`, :data:`WEIGHTS`), for two
+codings of the same step: :func:`rk4` on arrays of any model's size, and the
+free-flight hot path's ``rk4_stages`` (:mod:`jackbox.engine.flight`) on
+tuples, compiled with each model so that its state stays in registers
+(routing free flight through arrays made every step 2-3x slower). The two
+give the same numbers bit for bit (tests/test_engine.py checks it).
 """
 
 from numba import njit
 
 from .modes import accel
+
+#: the classical RK4 tableau (diagonal): stage s is evaluated at t + NODES[s] dt, at the start
+#: state moved NODES[s] dt along stage s-1's slope
+NODES = (0.0, 0.5, 0.5, 1.0)
+#: the step is dt / sum(WEIGHTS) times the sum of the stages' slopes weighted by WEIGHTS
+#: (whole numbers, so that a weight of 1 costs no rounding)
+WEIGHTS = (1.0, 2.0, 2.0, 1.0)
+SCALE = 6.0
+assert SCALE == sum(WEIGHTS)
 
 
 @njit(cache=True)
@@ -22,22 +31,18 @@ def rk4(model, t, q, qd, dt, p, q_out, qd_out, m, ws):
     """
     n = model.n_dof
     w = ws.work
-    qs, vs, a1, a2, a3, a4, v2, v3 = w[0], w[1], w[2], w[3], w[4], w[5], w[6], w[7]
-    h2 = 0.5 * dt
-    accel(model, t, q, qd, p, m, a1, ws)
+    qs = w[0]              # a stage's coordinates
+    v = w[1:5]             # the stages' rates: the slopes of q
+    a = w[5:9]             # the stages' accelerations: the slopes of qd
+    accel(model, t, q, qd, p, m, a[0], ws)
+    for s in range(1, 4):
+        h = NODES[s] * dt
+        for i in range(n):
+            qs[i] = q[i] + h * (qd[i] if s == 1 else v[s - 1, i])
+            v[s, i] = qd[i] + h * a[s - 1, i]
+        accel(model, t + h, qs, v[s], p, m, a[s], ws)
+    h = dt / SCALE
     for i in range(n):
-        qs[i] = q[i] + h2 * qd[i]
-        v2[i] = qd[i] + h2 * a1[i]
-    accel(model, t + h2, qs, v2, p, m, a2, ws)
-    for i in range(n):
-        qs[i] = q[i] + h2 * v2[i]
-        v3[i] = qd[i] + h2 * a2[i]
-    accel(model, t + h2, qs, v3, p, m, a3, ws)
-    for i in range(n):
-        qs[i] = q[i] + dt * v3[i]
-        vs[i] = qd[i] + dt * a3[i]
-    accel(model, t + dt, qs, vs, p, m, a4, ws)
-    h6 = dt / 6.0
-    for i in range(n):
-        q_out[i] = q[i] + h6 * (qd[i] + 2.0 * v2[i] + 2.0 * v3[i] + vs[i])
-        qd_out[i] = qd[i] + h6 * (a1[i] + 2.0 * a2[i] + 2.0 * a3[i] + a4[i])
+        q_out[i] = q[i] + h * (WEIGHTS[0] * qd[i] + WEIGHTS[1] * v[1, i] + WEIGHTS[2] * v[2, i] + WEIGHTS[3] * v[3, i])
+        qd_out[i] = qd[i] + h * (WEIGHTS[0] * a[0, i] + WEIGHTS[1] * a[1, i] + WEIGHTS[2] * a[2, i]
+                                 + WEIGHTS[3] * a[3, i])

@@ -121,7 +121,7 @@ def scratch(model):
     """Every scratch array the loops need, sized for the model: allocated once per call."""
     n, C = model.n_dof, model.n_contact
     return Scratch(
-        np.zeros((8, n)),           # RK4 stages
+        np.zeros((9, n)),           # RK4: a stage's coordinates, the stages' rates and accelerations
         np.zeros((C, n)),           # phi_q
         np.zeros((SC, C)),          # rows per contact
         np.zeros((SN, n)),          # rows per coordinate
