@@ -32,10 +32,10 @@ from numba.core import types
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
 from . import cache
-from .records import (TABLE, StepType, CROSSING, EXACT, NAIVE, RELEASE_AT, STEP, UPDATE, ExactType, NaiveType, Stages,
-                      StagesType, DONE, IMPACT_LOG_FULL, IMPULSE, MAX_EVENTS, NONFINITE, RELEASE, REST, STALLED,
-                      T_BOXV, T_EVENT, T_GAP, T_RBOX, T_RJACK, T_SPEED, T_VREST, T_WALL, EventsType,
-                      Events, F8, I1, I2, I8, Model, ModelType, Samples, SamplesType, SIGNATURES, SIZES, V1, V2)
+from .records import (TABLE, CROSSING, EXACT, NAIVE, RELEASE_AT, STEP, UPDATE, Stages, DONE, IMPACT_LOG_FULL,
+                      IMPULSE, MAX_EVENTS, NONFINITE, RELEASE, REST, STALLED, T_BOXV, T_EVENT, T_GAP, T_RBOX,
+                      T_RJACK, T_SPEED, T_VREST, T_WALL, Events, F8, I1, I2, I8, Model, Samples, SIGNATURES, SIZES,
+                      V1, V2)
 
 cache.install()
 
