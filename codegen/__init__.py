@@ -2,6 +2,8 @@
 
 Stages, one module each (the pipeline is the layout):
 
+* :mod:`codegen.spec`    the model vocabulary (coordinates, walls, parameter
+  slots); :mod:`codegen.expr` is the formula language of the models;
 * :mod:`codegen.model`   derives the equations of motion and the contact gaps
   of a scene with sympy (SE(2) transforms, Lagrangian, Euler-Lagrange);
 * :mod:`codegen.printer` turns one sympy expression into Python text, mapping
@@ -14,6 +16,18 @@ Stages, one module each (the pipeline is the layout):
 Importing this package does not import sympy; the stages do.
 """
 
+from .expr import FUNCTIONS as FORMULA_FUNCTIONS
+from .expr import Expr, ExprError
+from .expr import parse as parse_formula
+from .spec import (BASE_PARAMS, BASE_SYMBOLS, BOX_COORDS, COORDS, CORNER_SIGNS, JACK_COORDS, JACK_SHAPES, RATES,
+                   WALL_NORMALS, WALLS, constraint_names)
 from .version import GENERATOR, model_hash
 
-__all__ = ["GENERATOR", "model_hash"]
+__all__ = [
+    # the model vocabulary
+    "COORDS", "RATES", "BOX_COORDS", "JACK_COORDS", "WALLS", "WALL_NORMALS", "CORNER_SIGNS", "JACK_SHAPES",
+    "BASE_SYMBOLS", "BASE_PARAMS", "constraint_names",
+    # the formula language
+    "Expr", "ExprError", "parse_formula", "FORMULA_FUNCTIONS",
+    "GENERATOR", "model_hash",
+]

@@ -33,8 +33,10 @@ from dataclasses import dataclass
 
 import sympy as sp
 
-from jackbox import expr as _expr
-from jackbox.scene import BOX_COORDS, CORNER_SIGNS, COORDS, RATES, WALL_NORMALS, Scene
+from jackbox.scene import Scene
+
+from . import expr as _expr
+from .spec import BASE_SYMBOLS, BOX_COORDS, CORNER_SIGNS, COORDS, JACK_COORDS, RATES, WALL_NORMALS
 
 _FUNCTIONS = {
     "sin": sp.sin, "cos": sp.cos, "tan": sp.tan, "asin": sp.asin, "acos": sp.acos,
@@ -114,7 +116,7 @@ def frame_inertia(m, L, w):
 
 
 def to_sympy(text: str, symbols: dict[str, sp.Expr]) -> sp.Expr:
-    """Turn a checked scene formula into sympy, walking its syntax tree (no eval)."""
+    """Turn a formula into sympy, walking its checked syntax tree (no eval)."""
     tree = _expr.parse(text, set(symbols)).tree
 
     def walk(node):
@@ -146,8 +148,7 @@ def derive(scene: Scene) -> Model:
     qd = [rates[f"{name}_dot"] for name in scene.dof_names]
 
     # Constants every formula may name; inertias and masses are parameter slots.
-    base = {"t": t, "g": P["g"], "m_box": P["m_box"], "m_jack": P["m_jack"],
-            "J_box": P["J_box"], "J_jack": P["J_jack"], "L": P["L"]}
+    base = {"t": t} | {name: P[name] for name in BASE_SYMBOLS}
     base |= {name: P[name] for name in scene.user_params}
 
     # Box coordinates: symbols (free) or the motion formulas (prescribed).
@@ -155,8 +156,8 @@ def derive(scene: Scene) -> Model:
     if scene.prescribed:
         box_pose = [to_sympy(text, base) for text in scene.motion]
         box_rate = [sp.diff(expr, t) for expr in box_pose]
-    jack_pose = [coords[c] for c in COORDS[3:]]
-    jack_rate = [rates[f"{c}_dot"] for c in COORDS[3:]]
+    jack_pose = [coords[c] for c in JACK_COORDS]
+    jack_rate = [rates[f"{c}_dot"] for c in JACK_COORDS]
     state = dict(zip(COORDS, box_pose + jack_pose)) | dict(zip(RATES, box_rate + jack_rate))
     names = base | state
 

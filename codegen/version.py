@@ -1,9 +1,9 @@
 """Who wrote a generated file, and from which model: the generator id and the model hash.
 
-The model hash covers the scene's structure (what is compiled in) and a digest
-of the compiler's own source, so a change to either regenerates the module. It
-is computed without sympy, so the runtime can tell a current module from a
-stale one cheaply.
+The model hash covers the model's structure (what is compiled in,
+:meth:`codegen.spec.ModelSpec.structure`) and a digest of the compiler's own
+source, so a change to either regenerates the module. It is computed without
+sympy, so the runtime can tell a current module from a stale one cheaply.
 """
 
 from __future__ import annotations
@@ -16,11 +16,9 @@ VERSION = "0.1.0"
 
 
 def _source_digest() -> str:
-    # the compiler's own stages, and the formula grammar they consume
-    here = Path(__file__).resolve().parent
-    sources = sorted(here.glob("*.py")) + [here.parent / "jackbox" / "expr.py"]
+    # every module of the compiler: its stages, the spec and the formula grammar they consume
     digest = hashlib.sha256()
-    for path in sources:
+    for path in sorted(Path(__file__).resolve().parent.glob("*.py")):
         digest.update(path.name.encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()[:12]

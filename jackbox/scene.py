@@ -16,8 +16,9 @@ The result, :class:`Scene`, splits what a scene says into
   time, so changing a value never regenerates or recompiles anything;
 * its start state and run settings.
 
-This module never imports sympy: checking a scene and running a compiled one is
-cheap.
+The model's vocabulary (coordinates, walls, parameter slots) and the formula
+language are the compiler's (:mod:`codegen`). This module never imports sympy:
+checking a scene and running a compiled one is cheap.
 """
 
 from __future__ import annotations
@@ -32,25 +33,16 @@ from typing import Any
 
 import numpy as np
 
-from . import expr as _expr
+# the model's vocabulary and the formula language are the compiler's; the runtime's
+# other modules take the vocabulary from here
+from codegen import (BASE_PARAMS, BASE_SYMBOLS, BOX_COORDS, COORDS, CORNER_SIGNS, FORMULA_FUNCTIONS, JACK_COORDS,
+                     JACK_SHAPES, RATES, WALL_NORMALS, Expr, ExprError, constraint_names, parse_formula)
+from codegen import WALLS  # noqa: F401  (for geometry and plots)
+
 from .errors import SceneError
 
-COORDS = ("x_box", "y_box", "theta_box", "x_jack", "y_jack", "theta_jack")
-RATES = tuple(f"{c}_dot" for c in COORDS)
-BOX_COORDS, JACK_COORDS = COORDS[:3], COORDS[3:]
-WALLS = ("right", "top", "left", "bottom")
-#: outward normals of the inner walls, in the box frame
-WALL_NORMALS = ((1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0))
-#: the box's outer corners (+,+), (-,+), (-,-), (+,-), as multiples of L + w
-CORNER_SIGNS = ((1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0))
-JACK_SHAPES = ("cross", "square", "polygon")
-
-#: Symbols every formula may use besides ``t``, ``pi``, ``[params]`` and the state.
-BASE_SYMBOLS = ("g", "m_box", "m_jack", "J_box", "J_jack", "L")
-#: Parameter slots of every model, in array order; ``[params]`` follow.
-BASE_PARAMS = ("m_box", "J_box", "L", "w_box", "m_jack", "J_jack", "g", "e", "e_ground")
 RESERVED = frozenset(
-    {"t", "pi", "a_jack", *BASE_PARAMS, *COORDS, *RATES, *_expr.FUNCTIONS}
+    {"t", "pi", "a_jack", *BASE_PARAMS, *COORDS, *RATES, *FORMULA_FUNCTIONS}
 )
 
 #: Defaults for optional keys; everything else is required.
@@ -76,12 +68,6 @@ FREE_SECTIONS = ("params", "potential", "forces")
 NAME_RE = re.compile(r"^[a-z0-9_-]+$")
 VERTEX_SLOT_RE = re.compile(r"^jack_[xy][0-9]+$")   # a polygon jack's vertex parameters
 IDENT_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
-
-
-def constraint_names(n_points: int, ground: bool) -> tuple[str, ...]:
-    """``"<wall>:<point>"`` wall-major, then ``"ground:<corner>"`` when there is a ground."""
-    names = [f"{wall}:{i}" for wall in WALLS for i in range(n_points)]
-    return tuple(names + ([f"ground:{i}" for i in range(4)] if ground else []))
 
 
 def builtin_scenes() -> dict[str, Path]:
@@ -294,16 +280,16 @@ class _Checker:
                 self.fail(f"{name}[{i}]", f"must be a finite number, got {item!r}")
         return np.array(value, dtype=float)
 
-    def value_of(self, key: str, formula: _expr.Expr, values: dict[str, float]) -> float:
+    def value_of(self, key: str, formula: Expr, values: dict[str, float]) -> float:
         try:
             return formula.evaluate(values)
-        except _expr.ExprError as exc:
+        except ExprError as exc:
             self.fail(key, f"{exc} at t = 0" if "t" in values else str(exc))
 
-    def formula(self, key: str, value, allowed) -> _expr.Expr:
+    def formula(self, key: str, value, allowed) -> Expr:
         try:
-            return _expr.parse(value, allowed)
-        except _expr.ExprError as exc:
+            return parse_formula(value, allowed)
+        except ExprError as exc:
             self.fail(key, str(exc))
 
 
@@ -448,7 +434,7 @@ def _build(raw: dict, source: str, text: str, builtin: bool) -> Scene:
     values = dict(zip(param_names, param_values)) | {"t": 0.0}
     if prescribed:
         for i, (coord, formula) in enumerate(zip(("x", "y", "theta"), motion)):
-            q0[i] = c.value_of(f"box.{coord}", _expr.parse(formula, constants), values)
+            q0[i] = c.value_of(f"box.{coord}", parse_formula(formula, constants), values)
     _check_start(c, q0, points, L, w, ground and not prescribed)
 
     return Scene(
@@ -497,7 +483,7 @@ def frame_inertia(mass: float, L: float, w: float) -> float:
     """Polar inertia of the uniform square frame: ``m (so^2 + si^2) / 6``.
 
     The compiler derives the same value from the four wall segments
-    (:func:`codegen.model.frame_inertia`); a test checks that they agree.
+    (``frame_inertia`` in ``codegen/model.py``); a test checks that they agree.
     """
     so, si = 2.0 * (L + w), 2.0 * L
     return mass * (so * so + si * si) / 6.0
@@ -613,8 +599,8 @@ def check_start(scene: "Scene", p: np.ndarray, where: str) -> None:
         values = P | {"t": 0.0}
         for i, formula in enumerate(scene.motion):
             try:
-                q0[i] = _expr.parse(formula, constants).evaluate(values)
-            except _expr.ExprError as exc:
+                q0[i] = parse_formula(formula, constants).evaluate(values)
+            except ExprError as exc:
                 raise SceneError(where, f"box.{BOX_COORDS[i][:-4]}", f"{exc} at t = 0") from None
     gaps = contact_gaps(q0, points, P["L"], P["w_box"], scene.has_ground_contacts)
     worst = int(np.argmin(gaps))

@@ -4,8 +4,9 @@ Scene files carry formulas as strings (`"A*sin(2*pi*t/T)"`). They are parsed her
 with Python's own :mod:`ast` into a small, closed grammar (numbers, names, the
 four operations, powers and a fixed list of functions), so that a bad formula is
 refused with a precise message before anything runs, without importing sympy.
-The compiler (`codegen.model`) turns the same checked tree into sympy; the
-runtime only ever evaluates it numerically for start-state checks.
+The compiler (:mod:`codegen.model`) turns the same checked tree into sympy; the
+runtime checks a scene's formulas with it and only ever evaluates them
+numerically, for start-state checks.
 """
 
 from __future__ import annotations
