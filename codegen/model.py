@@ -1,6 +1,6 @@
-"""Stage 1: derive the symbolic model of a scene.
+"""Stage 1: derive the symbolic model of a :class:`~codegen.spec.ModelSpec`.
 
-From a checked :class:`jackbox.scene.Scene` this builds, with sympy:
+From a model's spec (its structure, see :mod:`codegen.spec`) this builds, with sympy:
 
 * the world-from-body SE(2) transforms ``g_wb`` (box) and ``g_wj`` (jack);
 * the kinetic energy from the body twists, ``T = 1/2 V^T I V`` with
@@ -21,8 +21,8 @@ From a checked :class:`jackbox.scene.Scene` this builds, with sympy:
   (``gap_bias``, with ``d^2 phi/dt^2 = phi_q qdd + gap_bias``);
 * the energy ``T + V`` of both bodies.
 
-Masses, sizes, inertias, g, restitutions and ``[params]`` stay symbols (the
-parameter array); only the structure of the scene is compiled in. For a
+Masses, sizes, inertias, g, restitutions and the user's parameters stay
+symbols (the parameter array); only the structure is compiled in. For a
 prescribed box the box coordinates are the motion formulas, functions of t.
 """
 
@@ -33,10 +33,8 @@ from dataclasses import dataclass
 
 import sympy as sp
 
-from jackbox.scene import Scene
-
 from . import expr as _expr
-from .spec import BASE_SYMBOLS, BOX_COORDS, CORNER_SIGNS, COORDS, JACK_COORDS, RATES, WALL_NORMALS
+from .spec import BASE_SYMBOLS, BOX_COORDS, CORNER_SIGNS, COORDS, JACK_COORDS, RATES, WALL_NORMALS, ModelSpec
 
 _FUNCTIONS = {
     "sin": sp.sin, "cos": sp.cos, "tan": sp.tan, "asin": sp.asin, "acos": sp.acos,
@@ -51,7 +49,7 @@ class CodegenError(Exception):
 
 @dataclass
 class Model:
-    """The symbolic model of one scene: inputs (symbols) and outputs (expressions)."""
+    """The symbolic model of one spec: inputs (symbols) and outputs (expressions)."""
 
     name: str
     structure: dict
@@ -137,24 +135,24 @@ def to_sympy(text: str, symbols: dict[str, sp.Expr]) -> sp.Expr:
     return walk(tree)
 
 
-def derive(scene: Scene) -> Model:
-    """The symbolic model of `scene` (see the module docstring)."""
+def derive(spec: ModelSpec) -> Model:
+    """The symbolic model of `spec` (see the module docstring)."""
     t = sp.Symbol("t", real=True)
-    p = [sp.Symbol(name, real=True) for name in scene.param_names]
-    P = dict(zip(scene.param_names, p))
+    p = [sp.Symbol(name, real=True) for name in spec.param_names]
+    P = dict(zip(spec.param_names, p))
     coords = {name: sp.Symbol(name, real=True) for name in COORDS}
     rates = {name: sp.Symbol(name, real=True) for name in RATES}
-    q = [coords[name] for name in scene.dof_names]
-    qd = [rates[f"{name}_dot"] for name in scene.dof_names]
+    q = [coords[name] for name in spec.dof_names]
+    qd = [rates[f"{name}_dot"] for name in spec.dof_names]
 
     # Constants every formula may name; inertias and masses are parameter slots.
     base = {"t": t} | {name: P[name] for name in BASE_SYMBOLS}
-    base |= {name: P[name] for name in scene.user_params}
+    base |= {name: P[name] for name in spec.user_params}
 
     # Box coordinates: symbols (free) or the motion formulas (prescribed).
     box_pose, box_rate = [coords[c] for c in BOX_COORDS], [rates[f"{c}_dot"] for c in BOX_COORDS]
-    if scene.prescribed:
-        box_pose = [to_sympy(text, base) for text in scene.motion]
+    if spec.prescribed:
+        box_pose = [to_sympy(text, base) for text in spec.motion]
         box_rate = [sp.diff(expr, t) for expr in box_pose]
     jack_pose = [coords[c] for c in JACK_COORDS]
     jack_rate = [rates[f"{c}_dot"] for c in JACK_COORDS]
@@ -171,10 +169,10 @@ def derive(scene: Scene) -> Model:
         V = body_twist(g, gdot)
         return sp.Rational(1, 2) * (V.T * sp.diag(m, m, J) * V)[0, 0], g
 
-    T_box, g_wb = kinetic(box_pose, box_rate, P["m_box"], P["J_box"], scene.prescribed)
+    T_box, g_wb = kinetic(box_pose, box_rate, P["m_box"], P["J_box"], spec.prescribed)
     T_jack, g_wj = kinetic(jack_pose, jack_rate, P["m_jack"], P["J_jack"], False)
     V_grav = P["g"] * (P["m_box"] * box_pose[1] + P["m_jack"] * jack_pose[1])
-    V_extra = sum((to_sympy(text, names) for _, text in sorted(scene.potential.items())), sp.Integer(0))
+    V_extra = sum((to_sympy(text, names) for _, text in sorted(spec.potential)), sp.Integer(0))
     T = sp.expand(sp.simplify(T_box + T_jack))
     V = V_grav + V_extra
     Lag = T - V
@@ -182,7 +180,8 @@ def derive(scene: Scene) -> Model:
     n = len(q)
     dL_dqd = [sp.diff(Lag, v) for v in qd]
     M = sp.Matrix(n, n, lambda i, j: sp.simplify(sp.diff(dL_dqd[i], qd[j])))
-    Q = [to_sympy(scene.forces[c], names) if c in scene.forces else sp.Integer(0) for c in scene.dof_names]
+    forces = dict(spec.forces)
+    Q = [to_sympy(forces[c], names) if c in forces else sp.Integer(0) for c in spec.dof_names]
     f = sp.Matrix([
         Q[i] + sp.diff(Lag, q[i])
         - sum(sp.diff(dL_dqd[i], q[j]) * qd[j] for j in range(n))
@@ -192,31 +191,31 @@ def derive(scene: Scene) -> Model:
 
     # Gaps: jack points in the box frame against the inner walls, then the ground.
     g_bj = se2_inverse(g_wb) * g_wj
-    if scene.shape == "polygon":
-        points = [(P[f"jack_x{i}"], P[f"jack_y{i}"]) for i in range(len(scene.points))]
+    if spec.shape == "polygon":
+        points = [(P[f"jack_x{i}"], P[f"jack_y{i}"]) for i in range(spec.n_points)]
     else:
         a = P["a_jack"]
-        signs = [(1, 0), (0, 1), (-1, 0), (0, -1)] if scene.shape == "cross" else CORNER_SIGNS
+        signs = [(1, 0), (0, 1), (-1, 0), (0, -1)] if spec.shape == "cross" else CORNER_SIGNS
         points = [(int(sx) * a, int(sy) * a) for sx, sy in signs]
     local = [g_bj * sp.Matrix([x, y, 1]) for x, y in points]
     rows = [P["L"] - (int(nx) * pt[0] + int(ny) * pt[1]) for nx, ny in WALL_NORMALS for pt in local]
     n_wall = len(rows)
-    if scene.has_ground_contacts:
+    if spec.ground:
         h = P["L"] + P["w_box"]
         for sx, sy in CORNER_SIGNS:
             rows.append((g_wb * sp.Matrix([int(sx) * h, int(sy) * h, 1]))[1])
     phi = sp.Matrix(rows)
     phi_q = phi.jacobian(q)
-    phi_t = phi.diff(t) if scene.prescribed else None
+    phi_t = phi.diff(t) if spec.prescribed else None
     # Rates and the velocity-product part of the gap accelerations,
     # d^2 phi/dt^2 = phi_q qdd + gap_bias, used by persistent contacts.
     gap_rate = phi_q * sp.Matrix(qd) + (phi_t if phi_t is not None else sp.zeros(len(rows), 1))
-    gap_bias = gap_rate.jacobian(q) * sp.Matrix(qd) + (gap_rate.diff(t) if scene.prescribed
+    gap_bias = gap_rate.jacobian(q) * sp.Matrix(qd) + (gap_rate.diff(t) if spec.prescribed
                                                       else sp.zeros(len(rows), 1))
-    box_motion = sp.Matrix(box_pose + box_rate) if scene.prescribed else None
+    box_motion = sp.Matrix(box_pose + box_rate) if spec.prescribed else None
 
     return Model(
-        name=scene.name, structure=scene.structure(), t=t, q=q, qd=qd, p=p,
+        name=spec.name, structure=spec.structure(), t=t, q=q, qd=qd, p=p,
         M=M, f=f, phi=phi, phi_q=phi_q, phi_t=phi_t, gap_rate=gap_rate, gap_bias=gap_bias, energy=T + V, box_motion=box_motion,
-        constraint_names=scene.constraint_names, n_wall_contacts=n_wall,
+        constraint_names=spec.constraint_names, n_wall_contacts=n_wall,
     )

@@ -579,10 +579,9 @@ def cmd_plot(args) -> int:
 
 
 def cmd_build(args) -> int:
-    from codegen.driver import build
-    from codegen.version import model_hash
+    from codegen import model_hash
 
-    from .loader import GENERATED_DIR, model_path, recorded_hash
+    from .loader import GENERATED_DIR, build_model, model_path, recorded_hash
     from .scene import builtin_scenes, load_scene
 
     names = args.scenes or list(builtin_scenes())
@@ -599,7 +598,7 @@ def cmd_build(args) -> int:
             stale += not current
             print(f"{'current' if current else 'STALE  '}  {target}")
             continue
-        result = build(scene, target)
+        result = build_model(scene, target)
         print(f"{'wrote    ' if result.changed else 'unchanged'}  {target}  "
               f"(derive {result.seconds['derive']:.2f} s, cse + emit {result.seconds['cse_emit']:.2f} s)")
     return 1 if stale else 0

@@ -16,9 +16,11 @@ Three content-addressed pieces keep compiled code from ever going stale:
 3. The *engine* (:mod:`jackbox.engine`): compiled once per machine and engine
    version for every model, cached in ``<cache>/engine/<digest>/``.
 
-The runtime reaches the compiler only through :func:`ensure_model` (which
-imports :mod:`codegen.driver`, and with it sympy, only to generate a module)
-and :func:`codegen.version.model_hash`. The cache folder is
+The runtime reaches the compiler through the top level of :mod:`codegen` only:
+:func:`build_model` (used by :func:`ensure_model` and ``jackbox build``) hands
+:func:`codegen.generate` the scene's :class:`codegen.ModelSpec` and writes the
+text it returns (sympy is imported only then), and :func:`codegen.model_hash`
+tells a current module from a stale one. The cache folder is
 ``$JACKBOX_CACHE_DIR``, else ``$XDG_CACHE_HOME/jackbox``, else
 ``~/.cache/jackbox``.
 """
@@ -34,6 +36,7 @@ import sys
 import tempfile
 import time
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 
@@ -42,7 +45,7 @@ import numpy as np
 
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
-from codegen.version import is_sealed, model_hash
+from codegen import generate, is_sealed, model_hash
 
 from . import engine
 from .engine.flight import INLINED
@@ -153,15 +156,30 @@ def ensure_model(scene: Scene, log=None) -> Path:
     path = model_path(scene)
     current = recorded_hash(path) == model_hash(scene.structure())
     if not current or not intact(path):
-        from codegen.driver import build   # sympy is only needed here
-
         if current:
             _warn(f"{path} was damaged (its seal does not match its text): generating it again")
-        result = build(scene, path)
+        result = build_model(scene, path)
         _intact.clear()
         if log:
             log(f"generated {path} ({sum(result.seconds.values()):.2f} s)")
     return path
+
+
+@dataclass
+class BuildResult:
+    path: Path
+    text: str
+    changed: bool
+    seconds: dict[str, float]   #: the compiler's stages: derive, cse_emit
+
+
+def build_model(scene: Scene, path: Path) -> BuildResult:
+    """Generate the module of `scene` into `path` (atomic; untouched if the text is unchanged)."""
+    text, seconds = generate(scene.model_spec())      # imports sympy (once per process)
+    changed = not path.exists() or path.read_bytes() != text.encode("utf-8")
+    if changed:
+        write_atomic(path, text)
+    return BuildResult(path, text, changed, seconds)
 
 
 def intact(path: Path) -> bool:

@@ -1,6 +1,6 @@
 """The slow twin: the same model and the same algorithm, written to be obviously right.
 
-The symbolic model of :mod:`codegen.model` is turned into numeric functions
+The compiler's symbolic model (:func:`codegen.derive`) is turned into numeric functions
 with ``sympy.lambdify`` (no cse, no Numba, no generated file), and the run is
 plain Python and numpy: ``qdd = solve(M, f)``, the classical RK4 tableau, and
 the impact LCP by trying every active set with ``numpy.linalg``. Tests hold
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import sympy as sp
 
-from codegen.model import Model, derive
+from codegen import Model, derive
 
 from .api import GAP_TOL, REST_TOL, Run, finish, prepare
 from .errors import SimulationError
@@ -66,7 +66,7 @@ _cache: dict[str, Functions] = {}
 
 
 def _lambdify(scene: Scene) -> Functions:
-    m = derive(scene)
+    m = derive(scene.model_spec())
     t, q, qd, p = m.t, m.q, m.qd, m.p
 
     def lam(args, expr, shape):

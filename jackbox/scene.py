@@ -17,8 +17,9 @@ The result, :class:`Scene`, splits what a scene says into
 * its start state and run settings.
 
 The model's vocabulary (coordinates, walls, parameter slots) and the formula
-language are the compiler's (:mod:`codegen`). This module never imports sympy:
-checking a scene and running a compiled one is cheap.
+language are the compiler's (:mod:`codegen`); :meth:`Scene.model_spec` is the
+structure as the compiler takes it. This module never imports sympy: checking a
+scene and running a compiled one is cheap.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ import numpy as np
 # the model's vocabulary and the formula language are the compiler's; the runtime's
 # other modules take the vocabulary from here
 from codegen import (BASE_PARAMS, BASE_SYMBOLS, BOX_COORDS, COORDS, CORNER_SIGNS, FORMULA_FUNCTIONS, JACK_COORDS,
-                     JACK_SHAPES, RATES, WALL_NORMALS, Expr, ExprError, constraint_names, parse_formula)
+                     JACK_SHAPES, RATES, WALL_NORMALS, Expr, ExprError, ModelSpec, constraint_names, parse_formula)
 from codegen import WALLS  # noqa: F401  (for geometry and plots)
 
 from .errors import SceneError
@@ -120,18 +121,18 @@ class Scene:
     def params(self) -> dict[str, float]:
         return dict(zip(self.param_names, self.param_values.tolist()))
 
+    def model_spec(self) -> ModelSpec:
+        """The scene's structure as the compiler takes it (:class:`codegen.ModelSpec`)."""
+        return ModelSpec(
+            name=self.name, command=f"jackbox build {self.name if self.builtin else self.source}",
+            param_names=self.param_names, user_params=tuple(self.user_params), prescribed=self.prescribed,
+            motion=self.motion, shape=self.shape, n_points=len(self.points), ground=self.has_ground_contacts,
+            potential=self.potential, forces=self.forces,
+        )
+
     def structure(self) -> dict:
         """What the compiler compiles in: equal structures give equal generated code."""
-        return {
-            "dofs": list(self.dof_names),
-            "motion": list(self.motion) if self.prescribed else None,
-            "shape": self.shape,
-            "n_points": len(self.points),
-            "ground": self.has_ground_contacts,
-            "potential": sorted(self.potential.items()),
-            "forces": sorted(self.forces.items()),
-            "params": list(self.param_names),
-        }
+        return self.model_spec().structure()
 
     def with_overrides(self, overrides: dict[str, Any]) -> "Scene":
         """A copy with ``name=value`` settings applied (see :func:`apply_overrides`)."""

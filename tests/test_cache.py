@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import jackbox
-from codegen.version import SEAL, seal
+from codegen import SEAL, seal
 from jackbox import engine, loader
 
 from .conftest import write_scene

@@ -351,7 +351,7 @@ def test_build_check_names_a_stale_builtin_and_build_rewrites_it(capsys, tmp_pat
 def test_build_scene_file_writes_its_model_into_the_cache(capsys, tmp_path, monkeypatch):
     # README: a scene that is not built in has its module generated into the cache folder
     # ($JACKBOX_CACHE_DIR), never into generated/; a second build leaves it byte-identical
-    from codegen.version import model_hash
+    from codegen import model_hash
 
     from jackbox import loader
 

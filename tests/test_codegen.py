@@ -14,8 +14,8 @@ import pytest
 import sympy as sp
 
 import jackbox
+from codegen import generate
 from codegen import model as cg_model
-from codegen.driver import generate
 from codegen.emitter import emit_module
 from codegen.printer import KernelPrinter, UnknownSymbolError
 from jackbox import loader, reference
@@ -130,7 +130,7 @@ def test_every_symbol_must_be_declared():
 
 def test_emitter_refuses_a_model_whose_outputs_use_undeclared_symbols():
     scene = jackbox.load_scene("drop")
-    m = cg_model.derive(scene)
+    m = cg_model.derive(scene.model_spec())
     m.phi = m.phi.col_join(sp.Matrix([sp.Symbol("stray")]))
     m.phi_q = m.phi.jacobian(m.q)
     with pytest.raises(cg_model.CodegenError, match="stray"):
@@ -140,7 +140,7 @@ def test_emitter_refuses_a_model_whose_outputs_use_undeclared_symbols():
 @pytest.mark.parametrize("name", BUILTINS)
 def test_committed_generated_module_is_current(name):
     scene = jackbox.load_scene(name)
-    fresh, _ = generate(scene)
+    fresh, _ = generate(scene.model_spec())
     committed = (loader.GENERATED_DIR / f"{name}.py").read_text()
     if fresh != committed:
         diff = "".join(difflib.unified_diff(committed.splitlines(True), fresh.splitlines(True),
@@ -150,7 +150,7 @@ def test_committed_generated_module_is_current(name):
 
 def test_regeneration_is_byte_identical_across_processes():
     # set iteration order depends on the hash seed; the output must not
-    code = "from codegen.driver import generate; import jackbox; print(generate(jackbox.load_scene('spring'))[0])"
+    code = "from codegen import generate; import jackbox; print(generate(jackbox.load_scene('spring').model_spec())[0])"
     texts = {subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                             env=os.environ | {"PYTHONHASHSEED": seed}).stdout
              for seed in ("1", "2", "3")}
