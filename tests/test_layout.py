@@ -1,0 +1,120 @@
+"""The boundary between the compiler and the runtime (README, Layout).
+
+``codegen/`` knows nothing of the runtime: none of its modules imports ``jackbox``
+(or reads its files). ``jackbox/`` reaches the compiler through one declared
+interface, the names in ``codegen.__all__``, imported from the package's top
+level and never from a stage (``codegen.model``, ``codegen.driver`` ...). So there
+is no import cycle, and importing the compiler does not import sympy.
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import codegen
+import jackbox
+
+from .conftest import BUILTINS
+
+ROOT = Path(__file__).resolve().parent.parent
+RUNTIME = ("jackbox", "generated")
+
+
+def imports(path: Path):
+    """(module, imported names, relative level, line) of every import statement in a file."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield alias.name, (), 0, node.lineno
+        elif isinstance(node, ast.ImportFrom):
+            yield node.module or "", tuple(a.name for a in node.names), node.level, node.lineno
+
+
+def sources(package: str) -> list[Path]:
+    files = sorted((ROOT / package).rglob("*.py"))
+    assert files, package
+    return files
+
+
+def test_codegen_imports_nothing_of_the_runtime():
+    found = []
+    for path in sources("codegen"):
+        where = f"{path.relative_to(ROOT)}:"
+        for module, _, level, line in imports(path):
+            if level == 0 and module.split(".")[0] in RUNTIME:
+                found.append(f"{where}{line} imports {module}")
+            if level > 1:        # from .. import x: out of the package
+                found.append(f"{where}{line} imports from outside codegen ({'.' * level}{module})")
+        # nor by name (importlib, a path to a runtime file)
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and any(
+                    node.value == name or node.value.startswith((f"{name}.", f"{name}/")) for name in RUNTIME):
+                found.append(f"{where}{node.lineno} names {node.value!r}")
+    assert not found, "codegen/ must know nothing of the runtime:\n" + "\n".join(found)
+
+
+def test_runtime_reaches_codegen_only_through_its_top_level():
+    declared = set(codegen.__all__)
+    found, used = [], set()
+    for path in sources("jackbox"):
+        where = f"{path.relative_to(ROOT)}:"
+        for module, names, level, line in imports(path):
+            if level or module.split(".")[0] != "codegen":
+                continue
+            if module != "codegen":
+                found.append(f"{where}{line} imports {module} (a stage, not the interface)")
+            elif undeclared := sorted(set(names) - declared):
+                found.append(f"{where}{line} imports {', '.join(undeclared)}, not in codegen.__all__")
+            used |= set(names)
+    assert not found, "jackbox/ must import only `from codegen import <name in __all__>`:\n" + "\n".join(found)
+    assert {"ModelSpec", "generate", "model_hash"} <= used
+
+
+def test_every_declared_name_exists():
+    for name in codegen.__all__:
+        assert getattr(codegen, name) is not None, name
+
+
+def loaded_after(code: str, packages=("jackbox", "generated", "sympy")) -> list[str]:
+    """Which of `packages` a new Python process has imported after running `code`."""
+    code += f"\nimport sys; print(sorted({{m.split('.')[0] for m in sys.modules}} & {set(packages)!r}))"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                          check=False, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr
+    return ast.literal_eval(proc.stdout.strip().splitlines()[-1])
+
+
+def test_importing_codegen_loads_neither_the_runtime_nor_sympy():
+    assert loaded_after("import codegen; codegen.ModelSpec, codegen.generate, codegen.parse_formula") == []
+
+
+def test_a_run_does_not_import_sympy():
+    # the runtime imports the compiler's interface, but sympy only when a module must be generated
+    assert loaded_after("import jackbox; jackbox.simulate('drop', t_end=0.01)") == ["jackbox"]
+
+
+@pytest.mark.parametrize("name", BUILTINS)
+def test_scene_and_its_model_spec_agree(name):
+    scene = jackbox.load_scene(name)
+    spec = scene.model_spec()
+    assert spec.name == scene.name and spec.command == f"jackbox build {name}"
+    assert spec.dof_names == scene.dof_names
+    assert spec.constraint_names == scene.constraint_names
+    assert spec.structure() == scene.structure()
+    assert spec.n_points == len(scene.points) and spec.ground == scene.has_ground_contacts
+    assert spec.user_params == tuple(scene.user_params)
+    assert spec.param_names == scene.param_names[:len(scene.param_names) - len(spec.user_params)] + spec.user_params
+
+
+def test_model_spec_is_plain_data():
+    spec = jackbox.load_scene("shaken").model_spec()
+    # formulas as sorted (name, formula) pairs, so that equal structures compare equal however given
+    again = codegen.ModelSpec(**{**vars(spec), "forces": dict(reversed(spec.forces))})
+    assert again == spec and hash(again) == hash(spec)
+    assert all(isinstance(v, (str, int, bool, tuple)) for v in vars(spec).values())
