@@ -170,11 +170,11 @@ def emit_module(model: Model, command: str) -> str:
 
 
 #: Tuple arithmetic of length N_DOF emitted with every model (no sympy involved).
-TUPLE_HELPERS = ("tuple_of", "axpy_s", "rk4_sum_s")
+TUPLE_HELPERS = ("tuple_of", "axpy_s", "wsum_s")
 
 
 def _tuple_helpers(n: int) -> list[str]:
-    """Unrolled n-tuple helpers for the fused loop's RK4 on floats."""
+    """Unrolled n-tuple helpers for the free-flight hot path's RK4 on floats (its tableau is the runtime's)."""
     def tup(item) -> str:
         return "(" + ", ".join(item(i) for i in range(n)) + ("," if n == 1 else "") + ")"
 
@@ -185,9 +185,9 @@ def _tuple_helpers(n: int) -> list[str]:
         "def axpy_s(h, x, y):\n"
         '    """y + h x for N_DOF-tuples."""\n'
         f"    return {tup(lambda i: f'y[{i}] + h * x[{i}]')}\n",
-        "def rk4_sum_s(y, h6, k1, k2, k3, k4):\n"
-        '    """RK4\'s update y + h6 (k1 + 2 k2 + 2 k3 + k4) for N_DOF-tuples."""\n'
-        f"    return {tup(lambda i: f'y[{i}] + h6 * (k1[{i}] + 2.0 * k2[{i}] + 2.0 * k3[{i}] + k4[{i}])')}\n",
+        "def wsum_s(y, h, w, k1, k2, k3, k4):\n"
+        '    """y + h (w[0] k1 + w[1] k2 + w[2] k3 + w[3] k4) for N_DOF-tuples (a 4-stage update)."""\n'
+        f"    return {tup(lambda i: f'y[{i}] + h * (w[0] * k1[{i}] + w[1] * k2[{i}] + w[2] * k3[{i}] + w[3] * k4[{i}])')}\n",
     ]
 
 

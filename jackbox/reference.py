@@ -32,6 +32,7 @@ import sympy as sp
 from codegen import Model, derive
 
 from .api import GAP_TOL, REST_TOL, Run, finish, prepare
+from .engine.integrator import NODES, SCALE, WEIGHTS
 from .errors import SimulationError
 from .scene import Scene, load_scene
 from .trajectory import Trajectory
@@ -87,17 +88,17 @@ def _lambdify(scene: Scene) -> Functions:
 
 
 def rk4_step(fn: Functions, t, q, qd, dt, p):
-    """The classical tableau on ``y = (q, qd)``, ``y' = (qd, M^-1 f)``."""
+    """The engine's tableau (:mod:`jackbox.engine.integrator`) on ``y = (q, qd)``, ``y' = (qd, M^-1 f)``."""
     def deriv(tt, y):
         return np.concatenate([y[n:], fn.accel(tt, y[:n], y[n:], p)])
 
     n = len(q)
     y = np.concatenate([q, qd])
-    k1 = deriv(t, y)
-    k2 = deriv(t + dt / 2, y + dt / 2 * k1)
-    k3 = deriv(t + dt / 2, y + dt / 2 * k2)
-    k4 = deriv(t + dt, y + dt * k3)
-    y = y + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    total, k = np.zeros_like(y), None
+    for node, weight in zip(NODES, WEIGHTS):
+        k = deriv(t + node * dt, y if k is None else y + node * dt * k)
+        total += weight * k
+    y = y + dt / SCALE * total
     return y[:n], y[n:]
 
 

@@ -16,7 +16,7 @@ integrates on floats only and looks at no gap row: the broad phase
 
 from jackbox.engine.broad import bound as _bound
 from jackbox.engine.gaps import speed_bound as _speed_bound
-from jackbox.engine.integrator import NODES as _NODES, SCALE as _SCALE
+from jackbox.engine.integrator import NODES as _NODES, SCALE as _SCALE, WEIGHTS as _WEIGHTS
 from jackbox.engine.records import T_EVENT as _T_EVENT, T_GAP as _T_GAP
 
 #: skip the gap rows of steps whose bounding circles are far from contact
@@ -27,8 +27,8 @@ BROAD_PHASE = True
 def rk4_stages(q, qd, dt, p, ta, tta, tm, ttm, tb, ttb):
     """One classical RK4 step of ``q' = qd, qd' = accel(t, q, qd)`` on tuples.
 
-    The tableau is :mod:`jackbox.engine.integrator`'s (``_NODES``, and the weights in ``rk4_sum_s``:
-    the inner stages share their node, the first and last weights are 1).
+    The tableau is :mod:`jackbox.engine.integrator`'s (``_NODES``, ``_WEIGHTS``,
+    ``_SCALE``; the inner stages share their node).
     Stage times ta, tm, tb come with their time terms ``tt* = accel_time_s(t*,
     p)`` (a shaking force's sine, 1/m), computed once per stage time.
     Returns ``(q, qd)``.
@@ -44,7 +44,7 @@ def rk4_stages(q, qd, dt, p, ta, tta, tm, ttm, tb, ttb):
     v4 = axpy_s(h4, a3, qd)
     a4 = accel_s(tb, axpy_s(h4, v3, q), v4, p, ttb)
     h = dt / _SCALE
-    return rk4_sum_s(q, h, qd, v2, v3, v4), rk4_sum_s(qd, h, a1, a2, a3, a4)
+    return wsum_s(q, h, _WEIGHTS, qd, v2, v3, v4), wsum_s(qd, h, _WEIGHTS, a1, a2, a3, a4)
 
 
 def grid_step(t, t_next, tt, q, qd, dt, p):
