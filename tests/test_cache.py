@@ -59,7 +59,9 @@ def test_changed_hot_path_is_recompiled(fresh_cache, tmp_path, monkeypatch):
     before = jackbox.simulate("drop", t_end=0.3)       # the exact method: the one that flies
     # An edit of the free-flight hot path: the RK4 weights become wrong (1/5 instead of 1/6).
     edited = tmp_path / "flight.py"
-    edited.write_text(loader.FLIGHT_SOURCE.read_text().replace("h6 = dt / 6.0", "h6 = dt / 5.0"))
+    source = loader.FLIGHT_SOURCE.read_text()
+    assert "h = dt / _SCALE" in source        # (the edit below must change something)
+    edited.write_text(source.replace("h = dt / _SCALE", "h = dt / 5.0"))
     monkeypatch.setattr(loader, "FLIGHT_SOURCE", edited)
     after = jackbox.simulate("drop", t_end=0.3)
     assert not loader.load_kernel(loader.ensure_model(jackbox.load_scene("drop"))).cache_hit
