@@ -11,6 +11,7 @@ One module per stage, in the order of the algorithm:
 * :mod:`.events`      event location inside a step (Illinois iteration);
 * :mod:`.modes`       contact modes: persistent contacts, forces, release;
 * :mod:`.loop`        the loops: integrate, look, locate, resolve, record;
+* :mod:`.draws`       random numbers as a hash of (seed, member, stream, draw);
 * :mod:`.members`     ensembles and twins, one member per ``prange`` iteration;
 * :mod:`.flight`      the free-flight hot path, compiled with each model;
 * :mod:`.cache`       where the machine code lives (one folder per engine version).
