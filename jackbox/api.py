@@ -20,6 +20,7 @@ import numpy as np
 
 from . import __version__, loader
 from . import engine as K
+from .engine.tolerances import EVENT_TOL, GAP_TOL, REST_TOL  # noqa: F401  (the exact method's, relative to L)
 from .errors import NonFiniteStateError, SimulationError, StalledError
 from .progress import progress_bar
 from .scene import Scene, load_scene, param_array
@@ -30,8 +31,6 @@ LOG_SIZE = 1024          #: first size of the event log (it doubles when full)
 #: "exact" locates every contact event; "naive" applies impulses at the end of
 #: the step in which a gap went negative (the original designs' method)
 METHODS = ("exact", "naive")
-#: tolerances of the exact method, relative to the scene's size and speed (see tolerances())
-GAP_TOL, EVENT_TOL, REST_TOL = 1e-9, 1e-12, 1e-7
 #: the most steps one run may take: step indices stay exact in float64 (2^53) far below it
 MAX_STEPS = 1e15
 #: bytes a recorded sample holds: t, q (6), qd (6), energy
@@ -120,43 +119,20 @@ def check_memory(nbytes: int, what: str, remedy: str) -> None:
 def tolerances(run: Run, kernel) -> np.ndarray:
     """The tolerance array of the exact method (slots ``T_*`` of jackbox/engine/records.py).
 
-    Lengths scale with the box's inner half-size L: contacts closer than 1e-9 L
-    take part in an impact; events are located where a gap is -0.5e-12 L
-    (a guard against round-off, far below anything visible). Normal speeds
-    below 1e-7 sqrt(g L) count as at rest: such a contact gets a plastic
-    impulse and becomes persistent, which ends a Zeno cascade of bounces
-    (remaining flight time below 2e-7 sqrt(L/g) / (1 - e)). Speed bounds
-    (the largest rate of change of any gap per unit of each rate, and of a
-    prescribed box's motion) decide which steps need the in-step dip test;
-    the bounding radii of the jack and the box feed the broad phase.
+    Computed by the engine (:mod:`jackbox.engine.tolerances`, where the rules
+    are), which fills an ensemble member's row the same way: a member and its
+    single run get the same tolerances to the last bit.
     """
-    scene, p = run.scene, run.p
-    P = dict(zip(scene.param_names, p))
-    L, w, g = P["L"], P["w_box"], abs(P["g"])
-    v_scale = math.sqrt(g * L) if g > 0 else L / max(run.n_steps * run.dt, run.dt)
-    if "a_jack" in P:
-        r_jack = P["a_jack"] * (math.sqrt(2.0) if scene.shape == "square" else 1.0)
-    else:
-        n = len(scene.points)
-        r_jack = max(math.hypot(P[f"jack_x{i}"], P[f"jack_y{i}"]) for i in range(n))
-    r_box = math.sqrt(2.0) * (L + w)
-    tol = np.zeros(K.T_SPEED + kernel.N_DOF)
-    tol[K.T_GAP] = GAP_TOL * L
-    tol[K.T_EVENT] = EVENT_TOL * L
-    tol[K.T_VREST] = REST_TOL * v_scale
-    tol[K.T_WALL] = L
-    tol[K.T_RJACK] = r_jack
-    tol[K.T_RBOX] = r_box
-    reach = [1.0, 1.0, 1.5 * r_jack]               # x, y, theta of the jack
-    if scene.prescribed:
-        # sample the box's motion densely; twice the largest speed seen bounds it
-        samples = min(max(2001, 4 * run.n_steps + 1), 20001)
-        speed = kernel.box_speed_bound(p, run.n_steps * run.dt, samples, r_box)
-        tol[K.T_BOXV] = 2.0 * speed
-    else:
-        reach = [1.0, 1.0, 1.5 * r_box] + reach
-    tol[K.T_SPEED:] = reach
-    return tol
+    factor, n_points = jack_radius_rule(run.scene)
+    return kernel.tolerances(run.p, factor, n_points, run.n_steps, run.dt)
+
+
+def jack_radius_rule(scene: Scene) -> tuple[float, int]:
+    """How the engine finds the jack's bounding radius: ``(factor, 0)``, a_jack times factor, or
+    ``(0, n)``, the farthest of the polygon's n vertices (parameters jack_x0, jack_y0, ...)."""
+    if "a_jack" in scene.param_names:
+        return (math.sqrt(2.0) if scene.shape == "square" else 1.0), 0
+    return 0.0, len(scene.points)
 
 
 def finish(run: Run, t, q, qd, energy, impact_t, impact_k, extra: dict,

@@ -339,8 +339,11 @@ class Kernel:
     def start_gaps(self, Q0, P):
         return engine.entry("start_gaps")(self.table(()), Q0, P)
 
-    def box_speed_bound(self, p, t_end, n_samples, r_box):
-        return engine.entry("box_speed_bound")(self.table(()), p, float(t_end), int(n_samples), float(r_box))
+    def tolerances(self, p, jack_factor, n_points, n_steps, dt):
+        out = np.empty(engine.T_SPEED + self.N_DOF)
+        engine.entry("fill_tolerances")(self.table(()), p, float(jack_factor), int(n_points), int(n_steps),
+                                        float(dt), out)
+        return out
 
 
 def load_kernel(model_file: Path, flight_text: str | None = None) -> Kernel:
@@ -382,8 +385,9 @@ def _bound(model_file: Path) -> bool:
 
 
 #: the engine's entry points each method needs (the first is the one to look for in the cache)
-ENTRY = {"exact": ("run_exact",), "naive": ("run_naive",),
-         "ensemble": ("run_members", "start_gaps"), "chaos": ("run_twin_members", "start_gaps")}
+ENTRY = {"exact": ("run_exact", "fill_tolerances"), "naive": ("run_naive",),
+         "ensemble": ("run_members", "start_gaps", "fill_tolerances"),
+         "chaos": ("run_twin_members", "start_gaps", "fill_tolerances")}
 #: the loop each method runs (compiled once as a function value)
 LOOP = {"exact": "exact", "naive": "naive", "ensemble": "exact", "chaos": "exact"}
 
@@ -407,8 +411,6 @@ def compile_kernel(kernel: Kernel, method: str | None = None) -> dict:
     model, kernel._cache = kernel._cache, "memory"
     names = ENTRY[method] if method else ENTRY["exact"] + ENTRY["naive"]
     loops = (LOOP[method],) if method else ("exact", "naive")
-    if kernel.PRESCRIBED:
-        names = names + ("box_speed_bound",)
     folder = engine.cache.engine_cache_path()
     if folder is not None and str(folder) not in _verified:
         _verified.add(str(folder))

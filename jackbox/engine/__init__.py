@@ -11,6 +11,7 @@ One module per stage, in the order of the algorithm:
 * :mod:`.events`      event location inside a step (Illinois iteration);
 * :mod:`.modes`       contact modes: persistent contacts, forces, release;
 * :mod:`.loop`        the loops: integrate, look, locate, resolve, record;
+* :mod:`.tolerances`  the tolerance row of one set of parameters (lengths, speeds, radii);
 * :mod:`.draws`       random numbers as a hash of (seed, member, stream, draw);
 * :mod:`.members`     ensembles and twins, one member per ``prange`` iteration;
 * :mod:`.flight`      the free-flight hot path, compiled with each model;
@@ -48,7 +49,7 @@ ENTRIES = {
     "run_members": ("members", (I2, V2, V2, V2, V2, F8, I8, I1, V3, V3, V2, V2, V2)),
     "run_twin_members": ("members", (I2, V2, V2, V2, V2, V2, V2, F8, I8, I8, V1, V2, V2)),
     "start_gaps": ("members", (I2, V2, V2)),
-    "box_speed_bound": ("members", (I2, V1, F8, I8, F8)),
+    "fill_tolerances": ("tolerances", (I2, V1, F8, I8, I8, F8, V1)),
 }
 #: the engine's function values: name -> (module, function, signature, what it needs compiled first)
 LOOPS = {

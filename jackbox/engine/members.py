@@ -189,18 +189,6 @@ def all_twins(model, exact, stages, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renor
 
 
 @njit(cache=True)
-def box_speed_bound(table, p, t_end, n_samples, r_box):
-    """Largest speed of any point of a prescribed box over [0, t_end], sampled at n_samples times."""
-    model = from_table(table, MODEL_AT, ModelType)
-    speed = 0.0
-    box = np.empty(6)
-    for j in range(n_samples):
-        model.box_motion(t_end * j / max(n_samples - 1, 1), p, box)
-        speed = max(speed, math.hypot(box[3], box[4]) + abs(box[5]) * r_box)
-    return speed
-
-
-@njit(cache=True)
 def start_gaps(table, Q0, P):
     """(n,) the smallest gap of each member's start state (negative: inside a wall)."""
     model = from_table(table, MODEL_AT, ModelType)

@@ -35,7 +35,7 @@ MAX_EVENTS = 10000
 MAX_ENUMERATED = 10
 
 # ---------------------------------------------------------------------------
-# slots of the tolerance array (filled by jackbox.api.tolerances)
+# slots of the tolerance array (filled by jackbox.engine.tolerances)
 T_GAP = 0       #: contacts closer than this take part in impacts and resting contact
 T_EVENT = 1     #: an event is located where gap = -T_EVENT / 2 (round-off guard)
 T_VREST = 2     #: normal speeds below this are "at rest": plastic impact, then persistent

@@ -1,0 +1,91 @@
+"""Tolerances: the exact method's lengths, speeds and radii for one row of parameters.
+
+One function fills the tolerance row (slots ``T_*`` of :mod:`.records`) for a
+single run (:func:`jackbox.api.tolerances`) and for each swept member of a
+study inside its parallel setup (:mod:`.members`), so a member and its re-run
+alone get the same row to the last bit.
+
+Lengths scale with the box's inner half-size L: contacts closer than 1e-9 L
+take part in an impact; events are located where a gap is -0.5e-12 L (a guard
+against round-off, far below anything visible). Normal speeds below
+1e-7 sqrt(g L) count as at rest: such a contact gets a plastic impulse and
+becomes persistent, which ends a Zeno cascade of bounces (remaining flight
+time below 2e-7 sqrt(L/g) / (1 - e)). Speed bounds (the largest rate of change
+of any gap per unit of each rate, and of a prescribed box's motion) decide
+which steps need the in-step dip test; the bounding radii of the jack and the
+box feed the broad phase.
+"""
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .records import (MODEL_AT, T_BOXV, T_EVENT, T_GAP, T_RBOX, T_RJACK, T_SPEED, T_VREST, T_WALL, ModelType,
+                      from_table)
+
+#: tolerances of the exact method, relative to the scene's size and speed
+GAP_TOL, EVENT_TOL, REST_TOL = 1e-9, 1e-12, 1e-7
+#: parameter slots read here (jackbox.scene.BASE_PARAMS: m_box, J_box, L, w_box, m_jack, J_jack, g, e,
+#: e_ground), then a_jack, or each vertex's x and y of a polygon jack
+L_AT, W_BOX_AT, G_AT, JACK_AT = 2, 3, 6, 9
+#: samples of a prescribed box's motion: 4 per step, at least 2001 and at most 20001
+BOX_SAMPLES_PER_STEP, BOX_SAMPLES_MIN, BOX_SAMPLES_MAX = 4, 2001, 20001
+
+
+@njit(cache=True)
+def box_speed_bound(model, p, t_end, n_samples, r_box):
+    """Largest speed of any point of a prescribed box over [0, t_end], sampled at n_samples times."""
+    speed = 0.0
+    box = np.empty(6)
+    for j in range(n_samples):
+        model.box_motion(t_end * j / max(n_samples - 1, 1), p, box)
+        speed = max(speed, math.hypot(box[3], box[4]) + abs(box[5]) * r_box)
+    return speed
+
+
+@njit(cache=True)
+def set_tolerances(model, p, jack_factor, n_points, n_steps, dt, boxv, out):
+    """Fill ``out`` (T_SPEED + n_dof slots) for parameters p.
+
+    The jack's bounding radius is a_jack times jack_factor (1 for a cross, sqrt 2
+    for a square), or with n_points > 0 the farthest of a polygon's vertices.
+    boxv: the bound on a prescribed box's speed (slot T_BOXV) when the caller
+    knows it (the parameters that move the box are a study's shared ones);
+    negative: sample the box's motion here (many calls of ``box_motion``).
+    """
+    L, w, g = p[L_AT], p[W_BOX_AT], abs(p[G_AT])
+    v_scale = math.sqrt(g * L) if g > 0 else L / max(n_steps * dt, dt)
+    if n_points == 0:
+        r_jack = p[JACK_AT] * jack_factor
+    else:
+        r_jack = 0.0
+        for i in range(n_points):
+            r_jack = max(r_jack, math.hypot(p[JACK_AT + 2 * i], p[JACK_AT + 2 * i + 1]))
+    r_box = math.sqrt(2.0) * (L + w)
+    out[:] = 0.0
+    out[T_GAP] = GAP_TOL * L
+    out[T_EVENT] = EVENT_TOL * L
+    out[T_VREST] = REST_TOL * v_scale
+    out[T_WALL] = L
+    out[T_RJACK] = r_jack
+    out[T_RBOX] = r_box
+    at = T_SPEED
+    if model.prescribed:
+        if boxv < 0.0:
+            # sample the box's motion densely; twice the largest speed seen bounds it
+            samples = min(max(BOX_SAMPLES_MIN, BOX_SAMPLES_PER_STEP * n_steps + 1), BOX_SAMPLES_MAX)
+            boxv = 2.0 * box_speed_bound(model, p, n_steps * dt, samples, r_box)
+        out[T_BOXV] = boxv
+    else:
+        # x, y, theta of the box
+        out[at], out[at + 1], out[at + 2] = 1.0, 1.0, 1.5 * r_box
+        at += 3
+    # x, y, theta of the jack
+    out[at], out[at + 1], out[at + 2] = 1.0, 1.0, 1.5 * r_jack
+
+
+@njit(cache=True)
+def fill_tolerances(table, p, jack_factor, n_points, n_steps, dt, out):
+    """:func:`set_tolerances` for the model in ``table`` (the box's speed sampled when it is prescribed)."""
+    set_tolerances(from_table(table, MODEL_AT, ModelType), p, jack_factor, n_points, n_steps, dt, -1.0, out)
