@@ -1,18 +1,22 @@
 """Ensembles and chaos studies: many members of one scene, on every core (or a Dask cluster).
 
 A study is a static, picklable :class:`EnsembleSpec` (the scene, the run, how
-the members differ, the seed) and a pure function of a member's index:
-:func:`member_inputs` builds member ``i``'s start state and parameters from
-``(seed, i)`` alone, and the compiled kernel runs members independently
-(``prange``). So any split of the members, over threads, chunks, processes or
+the members differ, the seed) and a pure function of a member's index: the
+engine sets member ``i`` up (its start state, parameters, tolerances, a chaos
+twin's offset) from a few small arrays and ``(seed, i)`` alone, as the first
+part of the member's own parallel work (``prange``), then runs the members
+independently. So any split of the members, over threads, chunks, processes or
 machines, gives the same numbers bit for bit; :func:`run_chunk` is the unit of
-work that a progress bar or a Dask task sees.
+work that a progress bar or a Dask task sees, and :func:`member_inputs` the
+setup alone.
 
 Members differ by
 
 * a perturbation of the start state (``perturb={"theta_jack": 1e-6}``):
-  uniform in ``[-s, s]`` per named coordinate or rate, random from
-  ``numpy.random.default_rng([seed, i])``, or on an even grid;
+  uniform in ``[-s, s]`` per named coordinate or rate, random from a hash of
+  ``(seed, i)`` (:mod:`jackbox.engine.draws`: these draws replaced
+  ``numpy.random.default_rng([seed, i])``, so a seed gives other members than
+  it did before), or on an even grid;
 * parameter values (``sweep={"e": (0.5, 1.0)}``): evenly spaced over the
   members for one parameter, a square grid for two; ``restitution`` sets both
   ``e`` and ``e_ground``. Parameters are runtime values: nothing recompiles.
@@ -33,12 +37,12 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__, api, loader
+from . import __version__, api, expr, loader
 from . import engine as K
 from .errors import SimulationError
 from .fileio import write_atomic
 from .progress import progress_bar
-from .scene import COORDS, RATES, Scene, check_param, is_number, load_scene
+from .scene import BASE_SYMBOLS, COORDS, RATES, Scene, check_param, is_number, load_scene
 
 #: members per kernel call when the progress bar is on (each call is parallel inside)
 CHUNK_MEMBERS = 1024
@@ -80,8 +84,8 @@ def plan(scene, n: int, perturb: dict[str, float] | None = None, params: dict[st
     scene = load_scene(scene)
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise SimulationError(f"n must be a positive integer, got {n!r}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise SimulationError(f"seed must be a non-negative integer, got {seed!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
+        raise SimulationError(f"seed must be an integer from 0 to 2^63 - 1, got {seed!r}")
     run = api.prepare(scene, t_end, dt, params=params, where="params")
     names = [*COORDS, *RATES]
     movable = scene.dof_names + tuple(f"{c}_dot" for c in scene.dof_names)
@@ -119,35 +123,12 @@ def plan(scene, n: int, perturb: dict[str, float] | None = None, params: dict[st
 
 
 def member_inputs(spec: EnsembleSpec, start: int, stop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Start coordinates, rates (integrated DOFs) and parameters of members start..stop-1."""
-    run = _base_run(spec)
-    idx = np.arange(start, stop)
-    m = len(idx)
-    Q0, QD0, P = np.tile(run.q, (m, 1)), np.tile(run.qd, (m, 1)), np.tile(run.p, (m, 1))
-    if spec.perturb:
-        k = len(spec.perturb)
-        if spec.grid:
-            side = _side(spec.n, k)
-            u = np.stack(np.unravel_index(idx, (side,) * k), axis=1).astype(float)
-            u = 2.0 * u / (side - 1) - 1.0 if side > 1 else np.zeros_like(u)
-        else:
-            u = np.array([np.random.default_rng([spec.seed, i]).uniform(-1.0, 1.0, k) for i in idx])
-        dofs = spec.scene.dof_names
-        for j, (name, scale) in enumerate(spec.perturb):
-            target, col = (QD0, dofs.index(name[:-4])) if name.endswith("_dot") else (Q0, dofs.index(name))
-            target[:, col] += scale * u[:, j]
-    if spec.sweep:
-        if len(spec.sweep) == 1:
-            coords = [idx]
-            side = spec.n
-        else:
-            side = _side(spec.n, 2)
-            coords = list(np.unravel_index(idx, (side, side)))
-        for (name, lo, hi), c in zip(spec.sweep, coords):
-            values = lo + (hi - lo) * c / (side - 1) if side > 1 else np.full(m, lo)
-            for slot in _param_slots(spec.scene, name):
-                P[:, slot] = values
-    return Q0, QD0, P
+    """Start coordinates, rates (integrated DOFs) and parameters of members start..stop-1.
+
+    The engine's setup of those members, the same code (and numbers) as a study's own.
+    """
+    rows = _set_up(spec, _kernel(spec), start, stop)
+    return rows["q0"], rows["qd0"], rows["params"]
 
 
 def run_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray]:
@@ -157,15 +138,14 @@ def run_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray
     first use in this process, else from Numba's cache) the scene's kernel.
     """
     kernel = _kernel(spec)
-    Q0, QD0, P = member_inputs(spec, start, stop)
-    TOL = _tolerances(spec, kernel, P)
-    _check_starts(spec, kernel, Q0, P, start)
+    rows = _set_up(spec, kernel, start, stop)
+    _check_starts(spec, rows, start)
     m, S = stop - start, len(spec.sample_steps)
     # samples a member never reaches stay NaN (the kernel writes the ones it reaches)
     samp_q, samp_qd = np.full((m, S, 6), np.nan), np.full((m, S, 6), np.nan)
     fin_q, fin_qd, fin = np.zeros((m, 6)), np.zeros((m, 6)), np.zeros((m, 5))
-    kernel.run_members(Q0, QD0, P, TOL, spec.dt, spec.n_steps, np.asarray(spec.sample_steps, np.int64),
-                       samp_q, samp_qd, fin_q, fin_qd, fin)
+    kernel.run_members(rows["q0"], rows["qd0"], rows["params"], rows["tol"], spec.dt, spec.n_steps,
+                       np.asarray(spec.sample_steps, np.int64), samp_q, samp_qd, fin_q, fin_qd, fin)
     # a member that stopped early has no final state: NaN, not its last sample
     # (the step it reached is kept in `steps`)
     lost = fin[:, 3] != K.DONE
@@ -173,30 +153,25 @@ def run_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray
     return {"q": fin_q, "qd": fin_qd, "energy": fin[:, 0], "impacts": fin[:, 1].astype(np.int64),
             "first_impact_t": fin[:, 2], "status": fin[:, 3].astype(np.int64),
             "steps": fin[:, 4].astype(np.int64), "samples_q": samp_q, "samples_qd": samp_qd,
-            "q0": Q0, "qd0": QD0, "params": P}
+            "q0": rows["q0"], "qd0": rows["qd0"], "params": rows["params"]}
 
 
 def run_chaos_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray]:
     """Twin trajectories of members start..stop-1: log stretch per renormalisation interval."""
     kernel = _kernel(spec)
-    Q0, QD0, P = member_inputs(spec, start, stop)
-    TOL = _tolerances(spec, kernel, P)
-    _check_starts(spec, kernel, Q0, P, start)
-    scale = _chaos_scale(spec)
-    n_dof = Q0.shape[1]
-    # the twin's offset: a random unit direction in the scaled state space, from (seed, i)
-    direction = np.array([np.random.default_rng([spec.seed, i, 1]).standard_normal(2 * n_dof)
-                          for i in range(start, stop)])
-    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
-    offset = spec.d0 * direction * scale
+    rows = _set_up(spec, kernel, start, stop)
+    _check_starts(spec, rows, start)
+    n_dof = rows["q0"].shape[1]
+    offset = rows["offset"]
     m = stop - start
     n_intervals = -(-spec.n_steps // spec.renorm_steps)
     stretch, fin = np.zeros((m, n_intervals)), np.zeros((m, 3))
-    kernel.run_twin_members(Q0, QD0, np.ascontiguousarray(offset[:, :n_dof]),
-                            np.ascontiguousarray(offset[:, n_dof:]), P, TOL, spec.dt, spec.n_steps,
-                            spec.renorm_steps, scale, stretch, fin)
+    kernel.run_twin_members(rows["q0"], rows["qd0"], np.ascontiguousarray(offset[:, :n_dof]),
+                            np.ascontiguousarray(offset[:, n_dof:]), rows["params"], rows["tol"], spec.dt,
+                            spec.n_steps, spec.renorm_steps, _chaos_scale(spec), stretch, fin)
     return {"stretch": stretch, "impacts": fin[:, 0].astype(np.int64), "status": fin[:, 1].astype(np.int64),
-            "steps": fin[:, 2].astype(np.int64), "q0": Q0, "qd0": QD0, "params": P, "offset": offset}
+            "steps": fin[:, 2].astype(np.int64), "q0": rows["q0"], "qd0": rows["qd0"], "params": rows["params"],
+            "offset": offset}
 
 
 @dataclass
@@ -339,6 +314,8 @@ def ensemble(scene, n: int, perturb=None, params=None, t_end=None, dt=None, seed
     """Run n members of a scene in parallel; see the module docstring for how they differ.
 
     samples: times (s) at which to keep every member's state (rounded to whole steps).
+    seed: member i's random perturbation is a hash of (seed, i) (jackbox.engine.draws), not
+    numpy's ``default_rng([seed, i])`` as before: the same seed now gives other members.
     threads: Numba threads in this process (default: all cores). scheduler:
     ``"tcp://host:port"`` of a running Dask scheduler; dask_local: start a
     Dask LocalCluster with that many worker processes instead. Results are
@@ -361,7 +338,9 @@ def chaos(scene, n: int, d0: float = 1e-8, renorm: float | None = None, perturb=
     """Finite-time Lyapunov exponents of n members from renormalised twin trajectories.
 
     Each member (start state perturbed as in :func:`ensemble`) runs with a
-    twin at scaled distance d0 in a random direction; every ``renorm`` seconds
+    twin at scaled distance d0 in a random direction (normal draws of a hash of
+    (seed, i), jackbox.engine.draws: not numpy's generators as before, so the
+    same seed now gives other directions and starts); every ``renorm`` seconds
     (default: 100 steps) the separation's growth is logged and the twin is
     pulled back to d0 along it. Coordinates are scaled by the box's inner
     half-width L (angles by 1 rad), rates by sqrt(g L) (or L / t_end).
@@ -470,24 +449,77 @@ def _base_run(spec: EnsembleSpec) -> api.Run:
     return api.prepare(spec.scene, spec.t_end, spec.dt, params=dict(spec.params))
 
 
-def _tolerances(spec: EnsembleSpec, kernel, P: np.ndarray) -> np.ndarray:
-    """One tolerance row per member (they depend on the parameters: sizes, g, the box's speed)."""
-    run = _base_run(spec)
-    rows, inverse = np.unique(P, axis=0, return_inverse=True)
-    tols = np.array([api.tolerances(dataclasses.replace(run, p=row), kernel) for row in rows])
-    return np.ascontiguousarray(tols[inverse.ravel()])
+def _setup(spec: EnsembleSpec, kernel, first: int) -> K.Setup:
+    """What each member's setup reads (:class:`jackbox.engine.Setup`): a few small arrays, not a row per member."""
+    scene, run = spec.scene, _base_run(spec)
+    dofs = scene.dof_names
+    n = len(dofs)
+    perturb_at = [n + dofs.index(name[:-4]) if name.endswith("_dot") else dofs.index(name) for name, _ in spec.perturb]
+    sweep_at, sweep_axis = [], []
+    for axis, (name, _, _) in enumerate(spec.sweep):
+        for slot in _param_slots(scene, name):
+            sweep_at.append(slot)
+            sweep_axis.append(axis)
+    # one parameter: spread over the members; two: a square grid (the second the faster)
+    sweep_side = 0 if not spec.sweep else spec.n if len(spec.sweep) == 1 else _side(spec.n, 2)
+    grid = _side(spec.n, len(spec.perturb)) if spec.grid and spec.perturb else 0
+    # a swept parameter that the box's motion (or its size, r_box) does not name leaves its speed bound alone
+    swept = {scene.param_names[slot] for slot in sweep_at}
+    box_swept = scene.prescribed and bool(swept & (_motion_names(scene) | {"L", "w_box"}))
+    jack_factor, n_points = api.jack_radius_rule(scene)
+    twins = spec.renorm_steps > 0
+    return K.Setup(
+        q=_f8(run.q), qd=_f8(run.qd), p=_f8(run.p), tol=api.tolerances(run, kernel),
+        perturb_at=_i8(perturb_at), perturb_by=_f8([size for _, size in spec.perturb]), grid=int(grid),
+        sweep_at=_i8(sweep_at), sweep_axis=_i8(sweep_axis), sweep_lo=_f8([lo for _, lo, _ in spec.sweep]),
+        sweep_hi=_f8([hi for _, _, hi in spec.sweep]), sweep_side=int(sweep_side), box_swept=int(box_swept),
+        jack_factor=float(jack_factor), n_points=int(n_points), n_steps=int(run.n_steps), dt=float(run.dt),
+        seed=int(spec.seed), first=int(first), d0=float(spec.d0) if twins else 0.0,
+        scale=_chaos_scale(spec) if twins else _f8([]))
 
 
-def _check_starts(spec: EnsembleSpec, kernel, Q0, P, start: int) -> None:
-    gaps = kernel.start_gaps(Q0, P)
-    L = P[:, spec.scene.param_names.index("L")]
+def _set_up(spec: EnsembleSpec, kernel, start: int, stop: int) -> dict[str, np.ndarray]:
+    """Members start..stop-1 set up by the engine, in parallel: one row each of q0, qd0, params, tol,
+    offset (a chaos twin's, else no columns) and gap (the start's smallest)."""
+    m, n, n_p = stop - start, len(spec.scene.dof_names), len(spec.scene.param_names)
+    rows = {"q0": np.empty((m, n)), "qd0": np.empty((m, n)), "params": np.empty((m, n_p)),
+            "tol": np.empty((m, K.T_SPEED + n)), "offset": np.empty((m, 2 * n if spec.renorm_steps else 0)),
+            "gap": np.empty(m)}
+    kernel.set_up_members(_setup(spec, kernel, start), rows["q0"], rows["qd0"], rows["params"], rows["tol"],
+                          rows["offset"], rows["gap"])
+    return rows
+
+
+def _check_starts(spec: EnsembleSpec, rows: dict[str, np.ndarray], start: int) -> None:
+    """Refuse members whose start (perturbed, or with swept sizes) is inside a wall, before any runs."""
+    gaps = rows["gap"]
+    L = rows["params"][:, spec.scene.param_names.index("L")]
     bad = np.flatnonzero(gaps < -START_TOL * L)
     if len(bad):
         i = bad[0]
         raise SimulationError(
             f"{spec.scene.name}: member {start + i}'s perturbed start reaches {-gaps[i]:.3g} into a wall "
-            f"or the ground ({len(bad)} such members in members {start}..{start + len(Q0) - 1}); "
+            f"or the ground ({len(bad)} such members in members {start}..{start + len(gaps) - 1}); "
             f"use smaller perturbations")
+
+
+def _motion_names(scene: Scene) -> set[str]:
+    """The parameters a prescribed box's motion formulas name (none for a free box)."""
+    if not scene.prescribed:
+        return set()
+    constants = set(BASE_SYMBOLS) | set(scene.user_params) | {"t"}
+    names = set()
+    for formula in scene.motion:
+        names |= expr.parse(formula, constants).names
+    return names - {"t"}
+
+
+def _f8(values) -> np.ndarray:
+    return np.ascontiguousarray(values, dtype=np.float64).reshape(-1)
+
+
+def _i8(values) -> np.ndarray:
+    return np.ascontiguousarray(values, dtype=np.int64).reshape(-1)
 
 
 def _chaos_scale(spec: EnsembleSpec) -> np.ndarray:

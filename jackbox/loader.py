@@ -336,8 +336,8 @@ class Kernel:
     def run_twin_members(self, *args):
         return engine.entry("run_twin_members")(self.table(), *args)
 
-    def start_gaps(self, Q0, P):
-        return engine.entry("start_gaps")(self.table(()), Q0, P)
+    def set_up_members(self, setup, Q0, QD0, P, TOL, OFFSET, GAP):
+        return engine.entry("set_up_members")(self.table(()), setup, Q0, QD0, P, TOL, OFFSET, GAP)
 
     def tolerances(self, p, jack_factor, n_points, n_steps, dt):
         out = np.empty(engine.T_SPEED + self.N_DOF)
@@ -386,8 +386,8 @@ def _bound(model_file: Path) -> bool:
 
 #: the engine's entry points each method needs (the first is the one to look for in the cache)
 ENTRY = {"exact": ("run_exact", "fill_tolerances"), "naive": ("run_naive",),
-         "ensemble": ("run_members", "start_gaps", "fill_tolerances"),
-         "chaos": ("run_twin_members", "start_gaps", "fill_tolerances")}
+         "ensemble": ("run_members", "set_up_members", "fill_tolerances"),
+         "chaos": ("run_twin_members", "set_up_members", "fill_tolerances")}
 #: the loop each method runs (compiled once as a function value)
 LOOP = {"exact": "exact", "naive": "naive", "ensemble": "exact", "chaos": "exact"}
 

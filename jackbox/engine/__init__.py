@@ -13,7 +13,7 @@ One module per stage, in the order of the algorithm:
 * :mod:`.loop`        the loops: integrate, look, locate, resolve, record;
 * :mod:`.tolerances`  the tolerance row of one set of parameters (lengths, speeds, radii);
 * :mod:`.draws`       random numbers as a hash of (seed, member, stream, draw);
-* :mod:`.members`     ensembles and twins, one member per ``prange`` iteration;
+* :mod:`.members`     ensembles and twins: each member's setup, then its run, one per ``prange`` iteration;
 * :mod:`.flight`      the free-flight hot path, compiled with each model;
 * :mod:`.cache`       where the machine code lives (one folder per engine version).
 
@@ -36,8 +36,8 @@ from numba.core.errors import NumbaExperimentalFeatureWarning
 from . import cache
 from .records import (TABLE, CROSSING, EXACT, NAIVE, RELEASE_AT, STEP, UPDATE, Stages, DONE, IMPACT_LOG_FULL,
                       IMPULSE, MAX_EVENTS, NONFINITE, RELEASE, REST, STALLED, T_BOXV, T_EVENT, T_GAP, T_RBOX,
-                      T_RJACK, T_SPEED, T_VREST, T_WALL, Events, F8, I1, I2, I8, Model, Samples, SIGNATURES, SIZES,
-                      V1, V2)
+                      T_RJACK, T_SPEED, T_VREST, T_WALL, Events, F8, I1, I2, I8, Model, Samples, Setup, SetupType,
+                      SIGNATURES, SIZES, V1, V2)
 
 cache.install()
 
@@ -48,7 +48,7 @@ ENTRIES = {
     "run_naive": ("loop", (I2, V1, V1, V1, F8, F8, I8, I8, I8, I8, V1, V2, V2, V1, I8, V1, I1, I1, I8)),
     "run_members": ("members", (I2, V2, V2, V2, V2, F8, I8, I1, V3, V3, V2, V2, V2)),
     "run_twin_members": ("members", (I2, V2, V2, V2, V2, V2, V2, F8, I8, I8, V1, V2, V2)),
-    "start_gaps": ("members", (I2, V2, V2)),
+    "set_up_members": ("members", (I2, SetupType, V2, V2, V2, V2, V2, V1)),
     "fill_tolerances": ("tolerances", (I2, V1, F8, I8, I8, F8, V1)),
 }
 #: the engine's function values: name -> (module, function, signature, what it needs compiled first)
@@ -64,7 +64,7 @@ _loops: dict = {}
 
 __all__ = ["DONE", "IMPACT_LOG_FULL", "NONFINITE", "STALLED", "IMPULSE", "REST", "RELEASE", "MAX_EVENTS",
            "T_GAP", "T_EVENT", "T_VREST", "T_BOXV", "T_WALL", "T_RJACK", "T_RBOX", "T_SPEED",
-           "Model", "Samples", "Events", "SIGNATURES", "SIZES", "ENTRIES", "LOOPS", "entry", "compiled_loop", "prepare", "table"]
+           "Model", "Samples", "Events", "Setup", "SIGNATURES", "SIZES", "ENTRIES", "LOOPS", "entry", "compiled_loop", "prepare", "table"]
 
 
 def _dispatcher(name: str):

@@ -1,5 +1,11 @@
 """Members: many runs of one model at once, one per ``prange`` iteration (ensembles and twins).
 
+A member's setup is its own work too, in a parallel loop before the runs
+(:func:`set_up_members`): its start, parameters, tolerance row and twin
+offset from the study's :class:`~.records.Setup` and its index alone, so no
+serial pass over the members precedes the parallel one, and the start gaps
+are known (a start inside a wall refused) before any member steps.
+
 A member runs :func:`~jackbox.engine.loop.integrate_exact` (its compiled
 function value ``exact``, so the loop's machine code is not generated again
 here) segment by segment (to each sample step, then to the end) with no recording in between.
@@ -12,8 +18,10 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .records import (DONE, EXACT_AT, IMPACT_LOG_FULL, IMPULSE, MODEL_AT, STAGES_AT, Events, ExactType, ModelType,
-                      Samples, StagesType, from_table)
+from .draws import START, TWIN, draw_normal, draw_uniform
+from .records import (DONE, EXACT_AT, IMPACT_LOG_FULL, IMPULSE, MODEL_AT, STAGES_AT, T_BOXV, Events, ExactType,
+                      ModelType, Samples, StagesType, from_table)
+from .tolerances import set_tolerances
 
 #: tally slots of one member: impulses so far, time of the first one (NaN if none)
 TALLY_IMPULSES = 0
@@ -188,13 +196,77 @@ def all_twins(model, exact, stages, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renor
                   stretch[j], fin[j])
 
 
+# ---------------------------------------------------------------------------
+# a member's setup: its own work, in parallel, from the study's Setup and its index alone
+
+
 @njit(cache=True)
-def start_gaps(table, Q0, P):
-    """(n,) the smallest gap of each member's start state (negative: inside a wall)."""
-    model = from_table(table, MODEL_AT, ModelType)
-    out = np.empty(Q0.shape[0])
+def grid_index(i, axis, n_axes, side):
+    """Coordinate ``axis`` (0 .. side - 1) of point i of a grid of side^n_axes points (the last axis fastest)."""
+    for _ in range(n_axes - 1 - axis):
+        i //= side
+    return i % side
+
+
+@njit(cache=True)
+def set_up_member(model, setup, i, q, qd, p, tol, offset):
+    """Member i's start (q, qd), parameters p, tolerance row and chaos twin's offset; returns its start gap.
+
+    Everything comes from ``setup`` and i: the random numbers are draws of
+    (seed, i) (:mod:`.draws`), so any member is set up alone, in any order,
+    on any thread, with the same bits. offset: 2 n_dof slots (coordinates, then
+    rates) when the study has twins (setup.d0 > 0), else none. The gap is the
+    smallest of the start state (negative: inside a wall).
+    """
+    n = model.n_dof
+    q[:] = setup.q
+    qd[:] = setup.qd
+    p[:] = setup.p
+    k = setup.perturb_at.shape[0]
+    for j in range(k):
+        if setup.grid == 0:
+            u = draw_uniform(setup.seed, i, START, j)
+        elif setup.grid > 1:
+            u = 2.0 * grid_index(i, j, k, setup.grid) / (setup.grid - 1) - 1.0
+        else:
+            u = 0.0
+        at = setup.perturb_at[j]
+        if at < n:
+            q[at] += setup.perturb_by[j] * u
+        else:
+            qd[at - n] += setup.perturb_by[j] * u
+    side = setup.sweep_side
+    for s in range(setup.sweep_at.shape[0]):
+        a = setup.sweep_axis[s]
+        lo, hi = setup.sweep_lo[a], setup.sweep_hi[a]
+        c = grid_index(i, a, setup.sweep_lo.shape[0], side)
+        p[setup.sweep_at[s]] = lo + (hi - lo) * c / (side - 1) if side > 1 else lo
+    if setup.sweep_at.shape[0] == 0:        # the shared parameters: the shared row
+        tol[:] = setup.tol
+    else:
+        set_tolerances(model, p, setup.jack_factor, setup.n_points, setup.n_steps, setup.dt,
+                       -1.0 if setup.box_swept else setup.tol[T_BOXV], tol)
+    if setup.d0 > 0.0:
+        # a random direction in the scaled state space (normal draws, normalised), d0 long
+        norm = 0.0
+        for d in range(2 * n):
+            offset[d] = draw_normal(setup.seed, i, TWIN, d)
+            norm += offset[d] * offset[d]
+        norm = math.sqrt(norm)
+        for d in range(2 * n):
+            offset[d] = setup.d0 * (offset[d] / norm) * setup.scale[d]
     gap = np.empty(model.n_contact)
-    for j in range(Q0.shape[0]):
-        model.phi(0.0, Q0[j], P[j], gap)
-        out[j] = gap.min()
-    return out
+    model.phi(0.0, q, p, gap)
+    return gap.min()
+
+
+@njit(cache=True)
+def set_up_members(table, setup, Q0, QD0, P, TOL, OFFSET, GAP):
+    """:func:`set_up_member` for members setup.first + j into row j of each array, in parallel."""
+    all_setups(from_table(table, MODEL_AT, ModelType), setup, Q0, QD0, P, TOL, OFFSET, GAP)
+
+
+@njit(cache=True, parallel=True)
+def all_setups(model, setup, Q0, QD0, P, TOL, OFFSET, GAP):
+    for j in prange(Q0.shape[0]):
+        GAP[j] = set_up_member(model, setup, setup.first + j, Q0[j], QD0[j], P[j], TOL[j], OFFSET[j])

@@ -83,6 +83,20 @@ SamplesType = types.NamedTuple([V1, V2, V2, V1], Samples)
 Events = namedtuple("Events", ["t", "k", "kind"])
 EventsType = types.NamedTuple([V1, I1, I1], Events)
 
+#: how the members of a study differ, read by each member's setup (jackbox.engine.members.set_up_member):
+#: the shared start (integrated DOFs), parameters and tolerance row; the state slots perturbed (q[i]
+#: for i < n_dof, else qd[i - n_dof]) and their half-widths, on a grid of this side (0: random draws);
+#: the parameter slots swept, the axis giving each its value, each axis's first and last value and the
+#: members along it (0: no sweep); whether a sweep moves a prescribed box (its speed bound is then
+#: sampled again); the jack's bounding radius (jackbox.engine.tolerances.set_tolerances); the run's
+#: steps and dt; the seed and the index of the first member set up; chaos twins' scaled distance (0:
+#: no twins) and the state's scale
+Setup = namedtuple("Setup", ["q", "qd", "p", "tol", "perturb_at", "perturb_by", "grid", "sweep_at", "sweep_axis",
+                             "sweep_lo", "sweep_hi", "sweep_side", "box_swept", "jack_factor", "n_points", "n_steps",
+                             "dt", "seed", "first", "d0", "scale"])
+SetupType = types.NamedTuple([V1, V1, V1, V1, I1, V1, I8, I1, I1, V1, V1, I8, I8, F8, I8, I8, F8, I8, I8, F8, V1],
+                             Setup)
+
 # ---------------------------------------------------------------------------
 # the loops as function values
 
