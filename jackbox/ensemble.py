@@ -497,10 +497,12 @@ def _check_starts(spec: EnsembleSpec, rows: dict[str, np.ndarray], start: int) -
     bad = np.flatnonzero(gaps < -START_TOL * L)
     if len(bad):
         i = bad[0]
+        remedy = " or ".join((["use smaller perturbations"] if spec.perturb else [])
+                             + (["narrow the sweep"] if spec.sweep else []))
         raise SimulationError(
-            f"{spec.scene.name}: member {start + i}'s perturbed start reaches {-gaps[i]:.3g} into a wall "
-            f"or the ground ({len(bad)} such members in members {start}..{start + len(gaps) - 1}); "
-            f"use smaller perturbations")
+            f"{spec.scene.name}: member {start + i}'s {'perturbed ' if spec.perturb else ''}start reaches "
+            f"{-gaps[i]:.3g} into a wall or the ground ({len(bad)} such members in members "
+            f"{start}..{start + len(gaps) - 1}); {remedy}")
 
 
 def _motion_names(scene: Scene) -> set[str]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 
@@ -12,7 +13,7 @@ import jackbox
 from jackbox import ensemble as E
 from jackbox.errors import JackboxError, SimulationError
 
-from .conftest import PRESCRIBED, run_cli, write_scene
+from .conftest import BUILTINS, PRESCRIBED, run_cli, write_scene
 
 PERTURB = {"theta_jack": 1e-3, "x_jack_dot": 1e-3}
 
@@ -73,6 +74,121 @@ def test_perturbations_are_seeded_and_bounded(shaken_ensemble):
     assert not np.array_equal(E.member_inputs(other, 0, 24)[0], ens.q0)
 
 
+#: SplitMix64's finaliser and the chain of jackbox/engine/draws.py, in Python's integers: the reference
+MASK = (1 << 64) - 1
+
+
+def splitmix(z: int) -> int:
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & MASK
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & MASK
+    return z ^ (z >> 31)
+
+
+def reference_uniform(seed: int, member: int, stream: int, k: int) -> float:
+    h = splitmix((seed + 0x9E3779B97F4A7C15) & MASK)
+    for word in (member, stream, k):
+        h = splitmix(((h ^ word) + 0x9E3779B97F4A7C15) & MASK)
+    return (h >> 11) * 2.0 ** -52 - 1.0
+
+
+def test_random_starts_are_the_documented_draws_and_look_uniform():
+    # members' draws are a hash of (seed, member, stream, draw): a size of 1 on a coordinate and a
+    # rate that start at 0 gives the draws themselves (0 + 1.0 * u, exactly)
+    from jackbox.engine import draws
+
+    n = 200_000
+    spec = E.plan("shaken", n, perturb={"x_box": 1.0, "y_box_dot": 1.0}, t_end=0.01, seed=11)
+    q0, qd0, _ = E.member_inputs(spec, 0, n)
+    u = np.column_stack([q0[:, 0], qd0[:, 1]])
+    for i in (0, 1, 12345, n - 1):
+        for j in range(2):
+            expected = reference_uniform(11, i, draws.START, j)
+            assert u[i, j] == expected, (i, j)
+            with np.errstate(over="ignore"):      # the plain-Python function (numpy's uint64 wraps)
+                assert draws.draw_uniform.py_func(11, i, draws.START, j) == expected
+    # in [-1, 1), multiples of 2^-52 (53 bits each), mean 0 and variance 1/3 to a few standard
+    # errors (of the mean: sqrt(1/3 / n) = 1.3e-3; of the variance: sqrt(4/45 / n) = 6.7e-4),
+    # flat in 20 bins (chi-square, 19 degrees of freedom: 60 is p < 1e-5), the columns uncorrelated
+    assert u.min() >= -1.0 and u.max() < 1.0
+    assert np.all(u * 2.0 ** 52 == np.round(u * 2.0 ** 52))
+    assert np.all(np.abs(u.mean(axis=0)) < 5 * 1.3e-3)
+    assert np.all(np.abs(u.var(axis=0) - 1 / 3) < 5 * 6.7e-4)
+    for col in u.T:
+        counts = np.histogram(col, bins=20, range=(-1, 1))[0]
+        assert np.sum((counts - n / 20) ** 2 / (n / 20)) < 60
+    assert abs(np.corrcoef(u.T)[0, 1]) < 5 / np.sqrt(n)
+    assert len(np.unique(u[:, 0])) == n                   # no two members share a start
+    # another seed, other draws
+    other = E.member_inputs(E.plan("shaken", 1000, perturb={"x_box": 1.0}, t_end=0.01, seed=12), 0, 1000)[0]
+    assert not np.any(other[:, 0] == u[:1000, 0])
+
+
+def test_chaos_twins_point_in_normal_random_directions():
+    # a twin's offset is d0 times a unit vector of standard normal draws (Box-Muller), scaled:
+    # over many members each scaled component has mean 0 and variance 1 / (2 n_dof)
+    spec = E.plan("shaken", 20_000, t_end=0.5, seed=4)
+    spec = dataclasses.replace(spec, renorm_steps=100, d0=1e-8)
+    rows = E._set_up(spec, E._kernel(spec), 0, spec.n)
+    unit = rows["offset"] / E._chaos_scale(spec) / 1e-8
+    np.testing.assert_allclose(np.linalg.norm(unit, axis=1), 1.0, rtol=1e-14)
+    # standard errors: of the mean sqrt(1/12 / n) = 2e-3, of the variance ~ sqrt(2) / 12 / sqrt(n) = 8e-4
+    assert np.all(np.abs(unit.mean(axis=0)) < 5 * 2e-3)
+    assert np.all(np.abs(unit.var(axis=0) - 1 / 12) < 5 * 8e-4)
+    # the direction is uniform on the sphere: its components are uncorrelated
+    c = np.corrcoef(unit.T) - np.eye(12)
+    assert np.abs(c).max() < 5 / np.sqrt(spec.n)
+
+
+def test_any_split_sets_members_up_the_same():
+    # a member's setup depends on (seed, i) alone: chunks of any size give the same rows as the
+    # whole, chaos twins' offsets included
+    spec = E.plan("shaken", 50, perturb=PERTURB, sweep={"A": (200.0, 400.0)}, t_end=0.5, seed=9)
+    spec = dataclasses.replace(spec, renorm_steps=100, d0=1e-8)
+    kernel = E._kernel(spec)
+    whole = E._set_up(spec, kernel, 0, 50)
+    for bounds in ([(0, 7), (7, 8), (8, 50)], [(a, min(a + 13, 50)) for a in range(0, 50, 13)]):
+        parts = [E._set_up(spec, kernel, a, b) for a, b in bounds]
+        for key in whole:
+            assert same_bits(np.concatenate([p[key] for p in parts]), whole[key]), (bounds, key)
+
+
+def test_member_tolerances_are_those_of_the_single_run(tmp_path):
+    # every member's tolerance row equals api.tolerances for its parameters, to the bit: the
+    # shared row, swept sizes (L, the jack's, the box's wall), g (its speed scale), and for a
+    # prescribed box a sweep that moves it (amp: its speed bound sampled again per member) and one
+    # that does not (e: the shared bound kept)
+    from jackbox import api
+
+    hand = write_scene(tmp_path, PRESCRIBED)
+    # (scene, sweep, perturb, whether the rows differ)
+    cases = [("shaken", {}, PERTURB, False), ("shaken", {"L": (4.5, 6.0), "a_jack": (0.5, 1.2)}, {}, True),
+             ("shaken", {"g": (0.0, 20.0)}, {}, True), ("drop", {"w_box": (0.05, 0.3)}, {}, True),
+             ("spring", {"a_jack": (0.1, 0.3)}, {}, True), (hand, {"amp": (0.1, 0.5)}, {}, True),
+             (hand, {"restitution": (0.5, 1.0)}, {"theta_jack": 0.01}, False),
+             (hand, {"jack_x0": (0.25, 0.35)}, {}, True)]
+    for scene, sweep, perturb, differ in cases:
+        n = 16 if len(sweep) == 2 else 5
+        spec = E.plan(scene, n, sweep=sweep, perturb=perturb, t_end=0.3)
+        kernel = E._kernel(spec)
+        rows = E._set_up(spec, kernel, 0, n)
+        run = E._base_run(spec)
+        for i in range(n):
+            expected = api.tolerances(dataclasses.replace(run, p=rows["params"][i]), kernel)
+            assert same_bits(rows["tol"][i], expected), (scene, sweep, i)
+        assert (len({r.tobytes() for r in rows["tol"]}) > 1) == differ, (scene, sweep)
+
+
+def test_the_engine_reads_the_parameter_slots_of_the_scene():
+    from jackbox.engine import tolerances as T
+    from jackbox.scene import BASE_PARAMS
+
+    assert [BASE_PARAMS[i] for i in (T.L_AT, T.W_BOX_AT, T.G_AT)] == ["L", "w_box", "g"]
+    assert T.JACK_AT == len(BASE_PARAMS)
+    for name in BUILTINS:
+        names = jackbox.load_scene(name).param_names
+        assert names[T.JACK_AT] in ("a_jack", "jack_x0")
+
+
 def test_grid_perturbation_and_two_parameter_sweep():
     spec = E.plan("shaken", 9, perturb={"x_jack": 0.1, "y_jack": 0.2}, grid=True, t_end=0.01)
     q0, _, _ = E.member_inputs(spec, 0, 9)
@@ -83,6 +199,9 @@ def test_grid_perturbation_and_two_parameter_sweep():
     ulp = np.spacing(1.5)
     np.testing.assert_allclose(np.unique(x), [-0.1, 0.0, 0.1], rtol=0, atol=ulp)
     np.testing.assert_allclose(np.unique(y), [-0.2, 0.0, 0.2], rtol=0, atol=ulp)
+    # exactly start + size * (2 k / (side - 1) - 1), the first coordinate the slower (numpy's C order)
+    u = 2.0 * np.array([[a, b] for a in range(3) for b in range(3)]) / 2 - 1.0
+    assert same_bits(q0[:, 3], 1.0 + 0.1 * u[:, 0]) and same_bits(q0[:, 4], 1.5 + 0.2 * u[:, 1])
     spec = E.plan("drop", 16, sweep={"restitution": (0.5, 1.0), "m_jack": (1.0, 4.0)}, t_end=0.01)
     _, _, P = E.member_inputs(spec, 0, 16)
     names = spec.scene.param_names
@@ -92,6 +211,13 @@ def test_grid_perturbation_and_two_parameter_sweep():
     np.testing.assert_allclose(np.unique(e), [0.5, 2 / 3, 5 / 6, 1.0], rtol=0, atol=np.spacing(1.0))
     np.testing.assert_array_equal(np.unique(m), [1.0, 2.0, 3.0, 4.0])
     assert len({(a, b) for a, b in zip(e, m)}) == 16
+    # exactly lo + (hi - lo) * k / (side - 1), restitution the slower axis
+    k = np.arange(16)
+    assert same_bits(e, 0.5 + (1.0 - 0.5) * (k // 4) / 3) and same_bits(m, 1.0 + (4.0 - 1.0) * (k % 4) / 3)
+    # one parameter: spread over all the members
+    spec = E.plan("drop", 7, sweep={"m_jack": (0.3, 2.9)}, t_end=0.01)
+    P = E.member_inputs(spec, 0, 7)[2][:, names.index("m_jack")]
+    assert same_bits(P, 0.3 + (2.9 - 0.3) * np.arange(7) / 6)
 
 
 def test_a_sweep_member_is_the_run_with_that_parameter():
@@ -108,6 +234,11 @@ def test_prescribed_box_members(tmp_path):
     traj = ens.trajectory(2)
     assert np.array_equal(traj.q[-1], ens.q[2])          # box columns filled from its motion
     assert np.all(ens.q[:, 1] == ens.q[0, 1])
+    # a sweep that moves the box: each member's box speed bound is its own, as its single run's
+    ens = E.ensemble(scene, 3, sweep={"amp": (0.1, 0.5)}, perturb={"theta_jack": 0.01}, t_end=0.5, seed=1)
+    for i in range(3):
+        traj = ens.trajectory(i)
+        assert np.array_equal(traj.q[-1], ens.q[i]) and len(traj.impact_t) == ens.impacts[i]
 
 
 @pytest.mark.parametrize("kwargs, message", [
@@ -118,6 +249,8 @@ def test_prescribed_box_members(tmp_path):
     ({"sweep": {"mass": (1, 2)}}, "unknown parameter"),
     ({"sweep": {"restitution": (0.5, 1.5)}}, "[0, 1]"),
     ({"samples": [99.0]}, "between 0 and t_end"),
+    ({"seed": 2**63}, "seed must be an integer from 0 to 2^63 - 1"),
+    ({"seed": -1}, "seed must be"),
 ])
 def test_bad_studies_are_refused(tmp_path, kwargs, message):
     # refused before anything runs, with an error the CLI prints as one line (a JackboxError:
@@ -129,10 +262,38 @@ def test_bad_studies_are_refused(tmp_path, kwargs, message):
     assert "\n" not in str(info.value)
 
 
-def test_a_start_inside_a_wall_is_refused():
-    # the cross's tips sit 4 m from the walls: a 5 m perturbation puts some inside
-    with pytest.raises(SimulationError, match="into a wall"):
-        E.ensemble("shaken", 20, perturb={"x_jack": 5.0}, t_end=0.1)
+def test_a_start_inside_a_wall_is_refused(monkeypatch):
+    """Refused before any member runs (each member's setup, in parallel, measures its start's gap),
+    in one line naming the first such member and how deep it is, by the scene checker's geometry."""
+    from jackbox.loader import Kernel
+    from jackbox.scene import contact_gaps
+
+    def no_run(*args):
+        raise AssertionError("a member ran")
+
+    monkeypatch.setattr(Kernel, "run_members", no_run)
+    monkeypatch.setattr(Kernel, "run_twin_members", no_run)
+    scene = jackbox.load_scene("shaken")
+
+    def first_inside(starts, sizes):
+        worst = np.array([contact_gaps(q, scene.points * a, 5.0, 0.5, False).min() for q, a in zip(starts, sizes)])
+        i = int(np.flatnonzero(worst < 0)[0])
+        return i, -worst[i]
+
+    # the cross's tips sit about 3 m from the walls: a 5 m perturbation puts some inside
+    spec = E.plan("shaken", 20, perturb={"x_jack": 5.0}, t_end=0.1)
+    i, depth = first_inside(E.member_inputs(spec, 0, 20)[0], np.ones(20))
+    for study in (E.ensemble, E.chaos):
+        with pytest.raises(SimulationError, match=rf"member {i}'s perturbed start reaches {depth:.3g} into a wall "
+                                                  ".*use smaller perturbations$") as info:
+            study("shaken", 20, perturb={"x_jack": 5.0}, t_end=0.1)
+        assert "\n" not in str(info.value)
+    # a sweep of the jack's size (arms 1 to 6 m, the centre 3.5 m from the top wall)
+    sizes = np.linspace(1.0, 6.0, 11)
+    i, depth = first_inside([scene.q0] * 11, sizes)
+    assert 0 < i < 10
+    with pytest.raises(SimulationError, match=rf"member {i}'s start reaches {depth:.3g} into a wall .*narrow the sweep$"):
+        E.ensemble("shaken", 11, sweep={"a_jack": (1.0, 6.0)}, t_end=0.1)
 
 
 def test_chaos_of_free_flight_is_the_linear_growth():
