@@ -36,13 +36,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from codegen import BASE_SYMBOLS, parse_formula
 
-from . import __version__, api, expr, loader
+from . import __version__, api, loader
 from . import engine as K
 from .errors import SimulationError
 from .fileio import write_atomic
 from .progress import progress_bar
-from .scene import BASE_SYMBOLS, COORDS, RATES, Scene, check_param, is_number, load_scene
+from .scene import COORDS, RATES, Scene, check_param, is_number, load_scene
 
 #: members per kernel call when the progress bar is on (each call is parallel inside)
 CHUNK_MEMBERS = 1024
@@ -512,7 +513,7 @@ def _motion_names(scene: Scene) -> set[str]:
     constants = set(BASE_SYMBOLS) | set(scene.user_params) | {"t"}
     names = set()
     for formula in scene.motion:
-        names |= expr.parse(formula, constants).names
+        names |= parse_formula(formula, constants).names
     return names - {"t"}
 
 
