@@ -58,7 +58,7 @@ LOOPS = {
     "crossing": ("events", "first_crossing", CROSSING, ()),
     "release": ("events", "first_release", RELEASE_AT, ()),
     "exact": ("loop", "integrate_exact", EXACT, ("step", "update", "crossing", "release")),
-    "naive": ("loop", "integrate", NAIVE, ("step",)),
+    "naive": ("loop", "integrate", NAIVE, ()),
 }
 _loops: dict = {}
 

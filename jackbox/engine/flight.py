@@ -121,6 +121,19 @@ def fly(t0, dt, i, i_stop, q_io, qd_io, p, tol, clear, qn_out, vn_out):
     return i, clear
 
 
+def free_step(t, q_in, qd_in, dt, p, q_out, qd_out):
+    """One RK4 step of free flight from t of length dt, on floats (the naive method's step).
+
+    The stage times are those of the engine's step (t, t + dt/2, t + dt), so
+    the two codings of the tableau give the same numbers.
+    """
+    q, qd = tuple_of(q_in), tuple_of(qd_in)
+    qn, vn, _ = grid_step(t, t + _NODES[3] * dt, accel_time_s(t, p), q, qd, dt, p)
+    for d in range(N_DOF):
+        q_out[d] = qn[d]
+        qd_out[d] = vn[d]
+
+
 #: what the binding compiles: inlined helpers, then the functions the engine calls
 INLINED = ("rk4_stages", "grid_step", "clearance_s")
-ENTRIES = ("clearance", "fly")
+ENTRIES = ("clearance", "free_step", "fly")

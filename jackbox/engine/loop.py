@@ -4,7 +4,7 @@
 or :mod:`.flight` far from every wall), looks at the gaps at both of its ends,
 locates the first event inside it (:mod:`.events`), resolves it (impulses and
 the persistent set, :mod:`.modes`) and steps on from there; samples are
-recorded on the grid. :func:`integrate` (method "naive") applies impulses at
+recorded on the grid. :func:`integrate` (method "naive": the model's free_step on floats) applies impulses at
 the end of the step in which a gap went negative.
 
 Both loops are compiled once for every model, as ``cfunc`` values of the
@@ -47,7 +47,7 @@ def record(model, t, q, qd, p, n, out, box):
     out.energy[n] = model.energy(t, q, qd, p)
 
 
-def integrate(model, step, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec, log, n_imp):
+def integrate(model, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec, log, n_imp):
     """Method "naive": advance from step ``i_begin`` to ``i_end`` (time ``t0 + i dt``).
 
     q, qd: the state, updated in place. Samples are recorded at every step
@@ -56,14 +56,14 @@ def integrate(model, step, q, qd, p, t0, dt, i_begin, i_end, n_total, record_eve
     Returns ``(step reached, n_rec, n_imp, status)``.
     """
     own = scratch(model)
-    result = naive_steps(model, step, borrow(q), borrow(qd), borrow(p), t0, dt, i_begin, i_end, n_total,
+    result = naive_steps(model, borrow(q), borrow(qd), borrow(p), t0, dt, i_begin, i_end, n_total,
                          record_every, borrow(out), n_rec, borrow(log), n_imp, borrow(own))
     keep(own)
     return result
 
 
 @njit(cache=True)
-def naive_steps(model, step, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec, log, n_imp, ws):
+def naive_steps(model, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec, log, n_imp, ws):
     """The body of :func:`integrate`, on borrowed views (:func:`~.records.borrow`) and its scratch ``ws``."""
     gap = ws.c[GA]
     if i_begin == 0 and n_rec == 0:   # (not again when resumed after a full log)
@@ -74,7 +74,7 @@ def naive_steps(model, step, q, qd, p, t0, dt, i_begin, i_end, n_total, record_e
             return i, n_rec, n_imp, IMPACT_LOG_FULL
         t = t0 + i * dt
         t_next = t0 + (i + 1) * dt
-        step(model, t, q, qd, dt, p, q, qd, 0, ws)
+        model.free_step(t, q, qd, dt, p, q, qd)      # nothing is ever held: the model's own RK4 on floats
         model.phi(t_next, q, p, gap)
         n_imp = resolve_impacts(model, t_next, q, qd, p, gap, 0.0, ws, log, n_imp)
         for d in range(model.n_dof):
@@ -293,6 +293,5 @@ def run_naive(table, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every,
               rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, ev_kind, n_imp):
     """:func:`integrate` for Python callers, like :func:`run_exact`."""
     naive = from_table(table, NAIVE_AT, NaiveType)
-    step = from_table(table, STAGES_AT, StagesType).step
-    return naive(from_table(table, MODEL_AT, ModelType), step, q, qd, p, t0, dt, i_begin, i_end, n_total,
-                 record_every, Samples(rec_t, rec_q, rec_qd, rec_energy), n_rec, Events(ev_t, ev_k, ev_kind), n_imp)
+    return naive(from_table(table, MODEL_AT, ModelType), q, qd, p, t0, dt, i_begin, i_end, n_total, record_every,
+                 Samples(rec_t, rec_q, rec_qd, rec_energy), n_rec, Events(ev_t, ev_k, ev_kind), n_imp)

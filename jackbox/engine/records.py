@@ -68,6 +68,7 @@ SIGNATURES = {
     "box_motion": types.void(F8, V1, V1),                     # (t, p, out)
     # the hot path (jackbox/engine/flight.py, compiled with the model)
     "clearance": F8(F8, V1, V1, V1),                          # (t, q, p, tol)
+    "free_step": types.void(F8, V1, V1, F8, V1, V1, V1),      # (t, q, qd, dt, p, q_out, qd_out)
     "fly": types.Tuple((I8, F8))(F8, F8, I8, I8, V1, V1, V1, V1, F8, V1, V1),
 }
 #: integer fields of the model record, then its functions
@@ -96,17 +97,6 @@ Setup = namedtuple("Setup", ["q", "qd", "p", "tol", "perturb_at", "perturb_by", 
                              "dt", "seed", "first", "d0", "scale"])
 SetupType = types.NamedTuple([V1, V1, V1, V1, I1, V1, I8, I1, I1, V1, V1, I8, I8, F8, I8, I8, F8, I8, I8, F8, V1],
                              Setup)
-
-# ---------------------------------------------------------------------------
-# the loops as function values
-
-#: (model, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec, log, n_ev)
-EXACT = types.UniTuple(I8, 4)(ModelType, V1, V1, I1, V1, V1, F8, F8, I8, I8, I8, I8, SamplesType, I8,
-                              EventsType, I8)
-#: (model, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec, log, n_imp)
-NAIVE = types.UniTuple(I8, 4)(ModelType, V1, V1, V1, F8, F8, I8, I8, I8, I8, SamplesType, I8, EventsType, I8)
-ExactType = types.FunctionType(EXACT)
-NaiveType = types.FunctionType(NAIVE)
 
 # ---------------------------------------------------------------------------
 # scratch
@@ -170,9 +160,8 @@ StagesType = types.NamedTuple([StepType, types.FunctionType(UPDATE), types.Funct
 #: out, n_rec, log, n_ev) -> (step reached, n_rec, n_ev, status)
 EXACT = types.UniTuple(I8, 4)(ModelType, StagesType, V1, V1, I1, V1, V1, F8, F8, I8, I8, I8, I8, SamplesType,
                               I8, EventsType, I8)
-#: the naive loop: (model, step, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec, log,
-#: n_imp)
-NAIVE = types.UniTuple(I8, 4)(ModelType, StepType, V1, V1, V1, F8, F8, I8, I8, I8, I8, SamplesType, I8, EventsType, I8)
+#: the naive loop: (model, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec, log, n_imp)
+NAIVE = types.UniTuple(I8, 4)(ModelType, V1, V1, V1, F8, F8, I8, I8, I8, I8, SamplesType, I8, EventsType, I8)
 ExactType = types.FunctionType(EXACT)
 NaiveType = types.FunctionType(NAIVE)
 
