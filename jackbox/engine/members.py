@@ -105,12 +105,18 @@ def run_member(model, exact, stages, q0, qd0, p, tol, dt, n_steps, sample_steps,
     fin[4] = i
 
 
+@njit(cache=True, inline="always")
+def parts(table):
+    """The model, the exact loop and its stages from a table (see :func:`~.records.from_table`)."""
+    return (from_table(table, MODEL_AT, ModelType), from_table(table, EXACT_AT, ExactType),
+            from_table(table, STAGES_AT, StagesType))
+
+
 @njit(cache=True)
 def run_members(table, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
     """:func:`run_member` for every row of Q0, QD0, P, TOL, in parallel; the model and loops in ``table``."""
-    all_members(from_table(table, MODEL_AT, ModelType), from_table(table, EXACT_AT, ExactType),
-                from_table(table, STAGES_AT, StagesType), Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd,
-                fin_q, fin_qd, fin)
+    model, exact, stages = parts(table)
+    all_members(model, exact, stages, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin)
 
 
 # (a prange loop takes its records as arguments: Numba's parfor lowering cannot rebuild one made in the same function)
@@ -184,9 +190,8 @@ def run_twins(model, exact, stages, q0, qd0, dq, dqd, p, tol, dt, n_steps, renor
 @njit(cache=True)
 def run_twin_members(table, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin):
     """:func:`run_twins` for every member, in parallel; the model and loops in ``table``."""
-    all_twins(from_table(table, MODEL_AT, ModelType), from_table(table, EXACT_AT, ExactType),
-              from_table(table, STAGES_AT, StagesType), Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale,
-              stretch, fin)
+    model, exact, stages = parts(table)
+    all_twins(model, exact, stages, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin)
 
 
 @njit(cache=True, parallel=True)

@@ -34,6 +34,20 @@ def rest_index(rest, ridx):
 
 
 @njit(cache=True, inline="always")
+def add_response(jac, winv, ridx, m, x, n, out):
+    """out += M^-1 J^T x over the m contacts ``ridx[:m]`` (M diagonal: ``winv`` = diag(M^-1)).
+
+    The body's answer to contact forces (into accelerations), position
+    corrections (into coordinates) or impulses (into rates).
+    """
+    for d in range(n):
+        s = 0.0
+        for i in range(m):
+            s += jac[ridx[i], d] * x[i]
+        out[d] += winv[d] * s
+
+
+@njit(cache=True, inline="always")
 def accel(model, t, q, qd, p, m, a, ws):
     """Accelerations into a: the model's own (m = 0), or with the m persistent contacts held.
 
@@ -71,11 +85,7 @@ def contact_accel(model, t, q, qd, p, m, a, ws):
             s += jac[k, d] * a[d]
         rhs[i] = -s
     solve_regularised(A, rhs, m, lam, ws)
-    for d in range(n):
-        s = 0.0
-        for i in range(m):
-            s += jac[ridx[i], d] * lam[i]
-        a[d] += winv[d] * s
+    add_response(jac, winv, ridx, m, lam, n, a)
 
 
 @njit(cache=True)
@@ -93,22 +103,14 @@ def project_rest(model, t, q, qd, p, m, ws):
         for i in range(m):
             rhs[i] = -g[ridx[i]]
         solve_regularised(A, rhs, m, x, ws)
-        for d in range(n):
-            s = 0.0
-            for i in range(m):
-                s += jac[ridx[i], d] * x[i]
-            q[d] += winv[d] * s
+        add_response(jac, winv, ridx, m, x, n, q)
     model.phi_q(t, q, p, jac)
     contact_matrix(jac, winv, ridx, m, A)
     model.gap_rate(t, q, qd, p, g)
     for i in range(m):
         rhs[i] = -g[ridx[i]]
     solve_regularised(A, rhs, m, x, ws)
-    for d in range(n):
-        s = 0.0
-        for i in range(m):
-            s += jac[ridx[i], d] * x[i]
-        qd[d] += winv[d] * s
+    add_response(jac, winv, ridx, m, x, n, qd)
 
 
 @njit(cache=True)
