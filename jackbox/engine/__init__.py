@@ -34,7 +34,7 @@ from numba.core import types
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
 from . import cache
-from .records import (TABLE, CROSSING, EXACT, NAIVE, RELEASE_AT, STEP, UPDATE, Stages, DONE, IMPACT_LOG_FULL,
+from .records import (TABLE, CROSSING, EXACT, NAIVE, RELEASE_AT, STEP, UPDATE, DONE, IMPACT_LOG_FULL,
                       IMPULSE, MAX_EVENTS, NONFINITE, RELEASE, REST, STALLED, T_BOXV, T_EVENT, T_GAP, T_RBOX,
                       T_RJACK, T_SPEED, T_VREST, T_WALL, Events, F8, I1, I2, I8, Model, Samples, Setup, SetupType,
                       SIGNATURES, SIZES, V1, V2)
@@ -124,11 +124,6 @@ def native_address(fn) -> int:
         return int(library.get_pointer_to_function(name[len(prefix):]) or 0)
     except Exception:
         return 0
-
-
-def stages() -> Stages:
-    """The exact loop's heavy stages as one record of function values."""
-    return Stages(*(compiled_loop(name) for name in Stages._fields))
 
 
 def prepare(names, loops=()) -> str:
