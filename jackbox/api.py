@@ -13,6 +13,7 @@ import math
 import os
 import time
 import uuid
+import warnings
 from dataclasses import dataclass
 
 import numba
@@ -21,7 +22,7 @@ import numpy as np
 from . import __version__, loader
 from . import engine as K
 from .engine.tolerances import EVENT_TOL, GAP_TOL, REST_TOL  # noqa: F401  (the exact method's, relative to L)
-from .errors import NonFiniteStateError, SimulationError, StalledError
+from .errors import NonFiniteStateError, RunStoppedError, SimulationError, SolverWarning
 from .progress import progress_bar
 from .scene import Scene, load_scene, param_array
 from .trajectory import Trajectory
@@ -136,7 +137,7 @@ def jack_radius_rule(scene: Scene) -> tuple[float, int]:
 
 
 def finish(run: Run, t, q, qd, energy, impact_t, impact_k, extra: dict,
-           contact_t=None, contact_k=None, contact_kind=None) -> Trajectory:
+           contact_t=None, contact_k=None, contact_kind=None, fallback=None) -> Trajectory:
     scene = run.scene
     meta = {
         # one id per run: its trajectory, time series and animation all carry it
@@ -154,7 +155,8 @@ def finish(run: Run, t, q, qd, energy, impact_t, impact_k, extra: dict,
                       constraint_names=scene.constraint_names, scene=scene.text, meta=meta,
                       contact_t=empty if contact_t is None else contact_t,
                       contact_constraint=(empty if contact_k is None else contact_k).astype(np.int64),
-                      contact_event=(empty if contact_kind is None else contact_kind).astype(np.int64))
+                      contact_event=(empty if contact_kind is None else contact_kind).astype(np.int64),
+                      fallback_t=np.empty((0, 2)) if fallback is None else fallback)
 
 
 def simulate(scene: Scene | str, t_end: float | None = None, dt: float | None = None,
@@ -193,7 +195,7 @@ def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
     q, qd = run.q.copy(), run.qd.copy()
     exact = run.method == "exact"
     if exact:
-        rest = np.zeros(kernel.N_CONTACT, np.int64)
+        rest = np.zeros(kernel.N_CONTACT + K.MODE_SLOTS, np.int64)
         tol = tolerances(run, kernel)
     i = n_rec = n_ev = 0
     bar = progress_bar(run.n_steps, progress, "step")
@@ -218,11 +220,9 @@ def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
                     f"{run.scene.name}: the state became non-finite at step {i} (t = {i * run.dt:.6g} s); "
                     f"last recorded sample at t = {rec_t[n_rec - 1]:.6g} s. Try a smaller dt "
                     f"(now {run.dt:g}) or check the forces and parameters.")
-            elif status == K.STALLED:
-                raise StalledError(
-                    f"{run.scene.name}: more than {K.MAX_EVENTS} contact events in the step at "
-                    f"t = {i * run.dt:.6g} s; the contacts may be wedged. Try method='naive' "
-                    f"or a different start.")
+            elif status != K.DONE:
+                raise RunStoppedError(f"{run.scene.name}: the kernel stopped at step {i} (t = {i * run.dt:.6g} s) "
+                                      f"with status {status}")
     finally:
         bar.close()
     run_seconds = time.perf_counter() - t_run
@@ -233,6 +233,37 @@ def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
         extra["tolerances"] = {"gap": tol[K.T_GAP], "event": tol[K.T_EVENT], "v_rest": tol[K.T_VREST]}
     ev_t, ev_k, ev_kind = ev_t[:n_ev], ev_k[:n_ev], ev_kind[:n_ev]
     hit = ev_kind == K.IMPULSE
+    mode = (ev_kind == K.REST) | (ev_kind == K.RELEASE)
+    fallback = fallback_intervals(ev_t[ev_kind == K.FALLBACK], ev_k[ev_kind == K.FALLBACK], run.n_steps * run.dt)
+    if exact:
+        extra["fallback_seconds"] = float(np.sum(fallback[:, 1] - fallback[:, 0]))
+        extra["solver_warnings"] = report_warnings(run, ev_t[ev_kind == K.WARNING], ev_k[ev_kind == K.WARNING])
     return finish(run, rec_t[:n_rec], rec_q[:n_rec], rec_qd[:n_rec], rec_e[:n_rec],
                   ev_t[hit].copy(), ev_k[hit].copy(), extra,
-                  ev_t[~hit].copy(), ev_k[~hit].copy(), ev_kind[~hit].copy())
+                  ev_t[mode].copy(), ev_k[mode].copy(), ev_kind[mode].copy(), fallback)
+
+
+#: what each WARNING code of the engine means, for a user
+WARNINGS = {K.WARN_LCP: ("lcp", "an iterative contact solve stopped before it converged"),
+            K.WARN_LOCATE: ("locate", "an event's time was not located to round-off")}
+
+
+def fallback_intervals(t, k, t_end: float) -> np.ndarray:
+    """(F, 2) start and end of each stretch the fallback integrated, from its FALLBACK events (1 in, 0 out)."""
+    out = []
+    for time_, into in zip(t.tolist(), k.tolist()):
+        if into:
+            out.append([time_, t_end])
+        elif out:
+            out[-1][1] = time_
+    return np.array(out, dtype=float).reshape(-1, 2)
+
+
+def report_warnings(run: Run, t, code) -> dict[str, int]:
+    """Count the engine's solver warnings by kind, and say so (a SolverWarning) if there were any."""
+    counts = {name: int(np.sum(code == c)) for c, (name, _) in WARNINGS.items()}
+    if len(t):
+        first = ", ".join(f"{np.sum(code == c)} times {text}" for c, (_, text) in WARNINGS.items() if np.any(code == c))
+        warnings.warn(SolverWarning(f"{run.scene.name}: {first} (first at t = {t.min():.6g} s); the run went on, "
+                                    f"but check the trajectory there"), stacklevel=3)
+    return counts

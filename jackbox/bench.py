@@ -265,7 +265,7 @@ class Loop:
         rec_t, rec_q, rec_qd, rec_e = self.rec
         ev_t, ev_k, ev_kind = self.ev
         if self.method == "exact":
-            rest = np.zeros(k.N_CONTACT, np.int64)
+            rest = np.zeros(k.N_CONTACT + api.K.MODE_SLOTS, np.int64)
             i, n_rec, n_ev, status = k.integrate_exact(
                 q, qd, rest, r.p, self.tol, 0.0, r.dt, 0, r.n_steps, r.n_steps, self.record_every,
                 rec_t, rec_q, rec_qd, rec_e, 0, ev_t, ev_k, ev_kind, 0)

@@ -144,7 +144,7 @@ def run_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray
     m, S = stop - start, len(spec.sample_steps)
     # samples a member never reaches stay NaN (the kernel writes the ones it reaches)
     samp_q, samp_qd = np.full((m, S, 6), np.nan), np.full((m, S, 6), np.nan)
-    fin_q, fin_qd, fin = np.zeros((m, 6)), np.zeros((m, 6)), np.zeros((m, 5))
+    fin_q, fin_qd, fin = np.zeros((m, 6)), np.zeros((m, 6)), np.zeros((m, 7))
     kernel.run_members(rows["q0"], rows["qd0"], rows["params"], rows["tol"], spec.dt, spec.n_steps,
                        np.asarray(spec.sample_steps, np.int64), samp_q, samp_qd, fin_q, fin_qd, fin)
     # a member that stopped early has no final state: NaN, not its last sample
@@ -153,7 +153,8 @@ def run_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray
     fin_q[lost], fin_qd[lost], fin[lost, 0] = np.nan, np.nan, np.nan
     return {"q": fin_q, "qd": fin_qd, "energy": fin[:, 0], "impacts": fin[:, 1].astype(np.int64),
             "first_impact_t": fin[:, 2], "status": fin[:, 3].astype(np.int64),
-            "steps": fin[:, 4].astype(np.int64), "samples_q": samp_q, "samples_qd": samp_qd,
+            "steps": fin[:, 4].astype(np.int64), "fallback": fin[:, 5], "warnings": fin[:, 6].astype(np.int64),
+            "samples_q": samp_q, "samples_qd": samp_qd,
             "q0": rows["q0"], "qd0": rows["qd0"], "params": rows["params"]}
 
 
@@ -166,13 +167,13 @@ def run_chaos_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.n
     offset = rows["offset"]
     m = stop - start
     n_intervals = -(-spec.n_steps // spec.renorm_steps)
-    stretch, fin = np.zeros((m, n_intervals)), np.zeros((m, 3))
+    stretch, fin = np.zeros((m, n_intervals)), np.zeros((m, 5))
     kernel.run_twin_members(rows["q0"], rows["qd0"], np.ascontiguousarray(offset[:, :n_dof]),
                             np.ascontiguousarray(offset[:, n_dof:]), rows["params"], rows["tol"], spec.dt,
                             spec.n_steps, spec.renorm_steps, _chaos_scale(spec), stretch, fin)
     return {"stretch": stretch, "impacts": fin[:, 0].astype(np.int64), "status": fin[:, 1].astype(np.int64),
-            "steps": fin[:, 2].astype(np.int64), "q0": rows["q0"], "qd0": rows["qd0"], "params": rows["params"],
-            "offset": offset}
+            "steps": fin[:, 2].astype(np.int64), "fallback": fin[:, 3], "warnings": fin[:, 4].astype(np.int64),
+            "q0": rows["q0"], "qd0": rows["qd0"], "params": rows["params"], "offset": offset}
 
 
 @dataclass
@@ -185,8 +186,10 @@ class Ensemble:
     energy: np.ndarray            #: (n,) final energy (NaN: not completed)
     impacts: np.ndarray           #: (n,) contact impulses
     first_impact_t: np.ndarray    #: (n,) time of the first impulse (NaN: none)
-    status: np.ndarray            #: (n,) 0 done, 2 non-finite, 3 stalled
+    status: np.ndarray            #: (n,) 0 done, 2 non-finite
     steps: np.ndarray             #: (n,) steps completed (t_reached = steps * dt)
+    fallback: np.ndarray          #: (n,) simulated seconds integrated by the fallback (first order; 0: none)
+    warnings: np.ndarray          #: (n,) solver warnings (a contact solve or event location that did not converge)
     samples_q: np.ndarray         #: (n, S, 6) state at spec.sample_times (NaN: not reached)
     samples_qd: np.ndarray
     q0: np.ndarray                #: (n, DOF) start coordinates of the integrated DOFs
@@ -236,6 +239,7 @@ class Ensemble:
                          f"{np.median(done):.0f}, range {done.min()}..{done.max()}")
         if hit.any():
             lines.append(f"  first impulse: {hit.sum()} members, median t = {np.median(self.first_impact_t[hit]):.4g} s")
+        lines += _fallback_lines(self.fallback, self.warnings)
         if not ok.all():
             lines.append(f"  NOT COMPLETED: {_lost(self.status)}, between t = {self.t_reached[~ok].min():.4g} "
                          f"and {self.t_reached[~ok].max():.4g} s; their final states and the samples they "
@@ -258,6 +262,8 @@ class ChaosStudy:
     impacts: np.ndarray
     status: np.ndarray
     steps: np.ndarray
+    fallback: np.ndarray          #: (n,) simulated seconds either twin spent in the fallback
+    warnings: np.ndarray          #: (n,) solver warnings of both twins
     q0: np.ndarray
     qd0: np.ndarray
     params: np.ndarray
@@ -291,6 +297,7 @@ class ChaosStudy:
                  f"d0 = {self.spec.d0:g}, renormalised every {self.spec.renorm_steps * self.spec.dt:g} s"]
         if not self.completed.all():
             lines.append(f"  NOT COMPLETED: {_lost(self.status)}; their FTLE is NaN and left out below")
+        lines += _fallback_lines(self.fallback, self.warnings)
         if len(f):
             lo, med, hi = np.percentile(f, [10, 50, 90])
             lines.append(f"  FTLE: mean {f.mean():.4g} 1/s, std {f.std(ddof=1) if len(f) > 1 else 0.0:.3g}, "
@@ -303,7 +310,8 @@ class ChaosStudy:
 
     def save(self, path) -> Path:
         arrays = {"times": self.times, "stretch": self.stretch, "growth": self.growth, "ftle": self.ftle,
-                  "impacts": self.impacts, "status": self.status, "steps": self.steps, "q0": self.q0,
+                  "impacts": self.impacts, "status": self.status, "steps": self.steps, "fallback": self.fallback,
+                  "warnings": self.warnings, "q0": self.q0,
                   "qd0": self.qd0, "params": self.params, "offset": self.offset}
         return _save(path, arrays, self.spec, self.meta)
 
@@ -542,6 +550,19 @@ def _param_slots(scene: Scene, name: str) -> list[int]:
         raise SimulationError(f"sweep: unknown parameter {name!r} (parameters: restitution, "
                               f"{', '.join(scene.param_names)})")
     return [scene.param_names.index(name)]
+
+
+def _fallback_lines(fallback: np.ndarray, warnings: np.ndarray) -> list[str]:
+    """Where members were first order (the fallback) or a solver did not converge; nothing if nowhere."""
+    lines = []
+    used = fallback > 0
+    if used.any():
+        lines.append(f"  fallback (Moreau-Jean, first order): {used.sum()} members, {fallback.sum():.4g} s in all, "
+                     f"at most {fallback.max():.4g} s in one (.fallback)")
+    if np.any(warnings > 0):
+        lines.append(f"  solver warnings: {np.sum(warnings > 0)} members, {warnings.sum()} in all (.warnings); "
+                     f"re-run one with .trajectory(i) to see where")
+    return lines
 
 
 def _lost(status: np.ndarray) -> str:

@@ -27,7 +27,11 @@ class NonFiniteStateError(RunStoppedError):
 
 
 class StalledError(RunStoppedError):
-    """The contacts made no progress within a step (CLI exit status 1)."""
+    """(Kept for callers that catch it: the exact method no longer stalls, its fallback takes such steps.)"""
+
+
+class SolverWarning(UserWarning):
+    """A contact solver inside the engine did not converge; the run went on (the trajectory says where)."""
 
 
 class CacheWarning(UserWarning):

@@ -21,7 +21,7 @@ from .scene import COORDS
 
 NPZ_KEYS = ("t", "q", "qd", "energy", "impact_t", "impact_constraint", "constraint_names", "scene", "meta")
 #: keys beyond SCENES.md, written by jackbox and optional when reading
-EXTRA_KEYS = ("contact_t", "contact_constraint", "contact_event")
+EXTRA_KEYS = ("contact_t", "contact_constraint", "contact_event", "fallback_t")
 #: arrays larger than this are stored, not deflated, unless save(compress=True) asks
 COMPRESS_BELOW = 8 << 20
 REST, RELEASE = 1, 2
@@ -45,6 +45,9 @@ class Trajectory:
     contact_t: np.ndarray = field(default_factory=lambda: np.empty(0))
     contact_constraint: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
     contact_event: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))  #: 1 rest, 2 release
+    #: (F, 2) start and end times of the stretches integrated by the fallback (Moreau-Jean
+    #: time-stepping, first order; method "exact"): where accuracy was not the exact method's
+    fallback_t: np.ndarray = field(default_factory=lambda: np.empty((0, 2)))
 
     coords = COORDS
 
@@ -70,6 +73,11 @@ class Trajectory:
         out["event"] = np.where(self.contact_event == REST, "rest", "release")
         return out
 
+    @property
+    def fallback_seconds(self) -> float:
+        """Simulated time integrated by the fallback (0: the exact method throughout)."""
+        return float(np.sum(self.fallback_t[:, 1] - self.fallback_t[:, 0])) if len(self.fallback_t) else 0.0
+
     def __len__(self) -> int:
         return len(self.t)
 
@@ -91,7 +99,7 @@ class Trajectory:
             "constraint_names": np.asarray(self.constraint_names, dtype=str),
             "scene": np.asarray(self.scene), "meta": np.asarray(json.dumps(self.meta, sort_keys=True)),
             "contact_t": self.contact_t, "contact_constraint": self.contact_constraint,
-            "contact_event": self.contact_event,
+            "contact_event": self.contact_event, "fallback_t": self.fallback_t,
         }
         if compress is None:
             compress = sum(a.nbytes for a in arrays.values()) < COMPRESS_BELOW
@@ -121,6 +129,6 @@ class Trajectory:
             impact_t=arrays["impact_t"], impact_constraint=arrays["impact_constraint"].astype(np.int64),
             constraint_names=tuple(str(s) for s in arrays["constraint_names"]),
             scene=str(arrays["scene"]), meta=meta,
-            **{k: arrays[k].astype(np.int64) if k != "contact_t" else arrays[k]
+            **{k: arrays[k].astype(np.int64) if k in ("contact_constraint", "contact_event") else arrays[k]
                for k in EXTRA_KEYS if k in arrays},
         )

@@ -124,9 +124,10 @@ def test_run_no_plots_writes_only_the_trajectory(drop_run):
 def test_run_npz_keys_and_shapes(drop_run):
     _, out_dir = drop_run
     with np.load(out_dir / "trajectory.npz", allow_pickle=False) as data:
-        # SCENES.md's keys, plus the contact mode changes of the exact method
-        assert set(data.files) == NPZ_KEYS | {"contact_t", "contact_constraint", "contact_event"}
+        # SCENES.md's keys, plus the contact mode changes and the fallback's stretches of the exact method
+        assert set(data.files) == NPZ_KEYS | {"contact_t", "contact_constraint", "contact_event", "fallback_t"}
         arrays = {k: data[k] for k in data.files}
+        assert arrays["fallback_t"].shape == (0, 2)     # the drop needs none
     n, k = N_SAMPLES, len(arrays["impact_t"])
     assert arrays["t"].shape == (n,)
     assert arrays["q"].shape == (n, 6)

@@ -2,10 +2,10 @@
 state (NaN), no samples past where it stopped (NaN), its time reached kept apart,
 and every summary counts it; the CLI exits 3.
 
-The members that stop here are the known stall of the exact method (a box thrown
-spinning at 15 rad/s, e = 0.5: the jack is flung into a box corner, about 1 s in).
-When that stall is fixed ("Contact that never gives up"), these tests need another
-member that cannot finish (a state that turns non-finite).
+The members that stop here turn non-finite: shaken with its shaking period T =
+1e-310 s puts sin(2 pi t / T) at sin(inf) = NaN in its first steps. (They used
+to be the stall of the exact method, a box thrown spinning into a corner; its
+fallback now finishes those.)
 """
 
 from __future__ import annotations
@@ -17,28 +17,27 @@ import pytest
 
 import jackbox
 from jackbox.ensemble import chaos, ensemble
-from jackbox.engine import DONE, STALLED
+from jackbox.engine import DONE, NONFINITE
 
 from .conftest import run_cli
-from .test_ensemble import SPINNING
 
 T_END = 1.2
 SAMPLES = [0.5, 1.15]
-#: drop thrown spinning; e from 0.5 (stalls near t = 1 s) to 1.0 (completes)
-SPIN = {"initial.qd": [0, 0, 15.0, 0, 0, 0]}
+#: shaken's period from 1e-310 s (non-finite at once) to 3 s (completes)
+SWEEP = {"T": (1e-310, 3.0)}
 
 
 @pytest.fixture(scope="module")
 def spun():
-    scene = jackbox.load_scene("drop", SPIN)
-    return scene, ensemble(scene, 3, sweep={"restitution": (0.5, 1.0)}, t_end=T_END, samples=SAMPLES)
+    scene = jackbox.load_scene("shaken")
+    return scene, ensemble(scene, 3, sweep=SWEEP, t_end=T_END, samples=SAMPLES)
 
 
 def test_a_member_that_stops_early_has_no_final_state_and_no_unreached_samples(spun):
     scene, ens = spun
     lost = ~ens.completed
     assert lost.any() and ens.completed.any(), ens.status     # a mix: the check below bites both ways
-    assert set(ens.status[lost]) == {STALLED} and set(ens.status[~lost]) == {DONE}
+    assert set(ens.status[lost]) == {NONFINITE} and set(ens.status[~lost]) == {DONE}
     assert np.all(np.isnan(ens.q[lost])) and np.all(np.isnan(ens.qd[lost])) and np.all(np.isnan(ens.energy[lost]))
     assert np.all(np.isfinite(ens.q[~lost])) and np.all(np.isfinite(ens.energy[~lost]))
     assert np.all(ens.t_reached[lost] < T_END) and np.all(ens.t_reached[~lost] == pytest.approx(T_END))
@@ -47,7 +46,7 @@ def test_a_member_that_stops_early_has_no_final_state_and_no_unreached_samples(s
     assert (~reached).any()
     # what a member did reach is the run's own: the same numbers as jackbox.simulate up to there
     i = int(np.flatnonzero(lost)[0])
-    with pytest.raises(jackbox.StalledError, match=re.escape(f"t = {ens.t_reached[i]:.6g} s")):
+    with pytest.raises(jackbox.NonFiniteStateError, match=re.escape(f"t = {ens.t_reached[i]:.6g} s")):
         ens.trajectory(i)
     j = int(np.flatnonzero(~lost)[0])
     np.testing.assert_array_equal(ens.trajectory(j).q[-1], ens.q[j])
@@ -61,16 +60,15 @@ def test_summaries_say_how_many_members_did_not_complete(spun):
     done = ens.impacts[ens.completed]       # a stopped member's count is partial: left out
     assert (f"impulses per member (completed): median {np.median(done):.0f}, "
             f"range {done.min()}..{done.max()}") in ens.summary()
-    assert f"NOT COMPLETED: {k} of 3 members ({k} stalled)" in ens.summary()
-    assert f"NOT COMPLETED: {k} of 3 members ({k} stalled)" in repr(ens)
-    assert repr(ens).startswith("<Ensemble drop: 3 members over 1.2 s, ")
+    assert f"NOT COMPLETED: {k} of 3 members ({k} non-finite)" in ens.summary()
+    assert f"NOT COMPLETED: {k} of 3 members ({k} non-finite)" in repr(ens)
+    assert repr(ens).startswith("<Ensemble shaken: 3 members over 1.2 s, ")
 
 
 def test_the_cli_exits_3_when_members_did_not_complete(spun, tmp_path, capsys):
     _, ens = spun
-    status, out, err = run_cli(capsys, "ensemble", "drop", "--n", "3", "--set", "initial.qd=[0, 0, 15.0, 0, 0, 0]",
-                               "--sweep", "restitution=0.5:1.0", "--t-end", str(T_END), "--samples", "0.5", "1.15",
-                               "--out", str(tmp_path), "-q")
+    status, out, err = run_cli(capsys, "ensemble", "shaken", "--n", "3", "--sweep", "T=1e-310:3.0",
+                               "--t-end", str(T_END), "--samples", "0.5", "1.15", "--out", str(tmp_path), "-q")
     k = int((~ens.completed).sum())
     assert status == 3
     assert err.strip().splitlines() == [f"jackbox: {k} of 3 members did not complete (exit status 3)"]
@@ -83,11 +81,10 @@ def test_the_cli_exits_3_when_members_did_not_complete(spun, tmp_path, capsys):
 
 
 def test_a_chaos_study_counts_its_lost_members():
-    # shaken's structure (its chaos loop is compiled for other tests) with the stall of
-    # a spinning box (tests/test_ensemble.py: STALLED at t = 0.543 s)
-    scene = jackbox.load_scene("shaken", SPINNING)
+    # shaken with a period that makes its forces NaN in the first steps
+    scene = jackbox.load_scene("shaken", {"T": 1e-310})
     study = chaos(scene, 2, t_end=1.0, renorm=0.1)
     assert not study.completed.any()
     assert np.all(np.isnan(study.ftle))
-    assert "NOT COMPLETED: 2 of 2 members (2 stalled)" in study.summary()
-    assert "NOT COMPLETED: 2 of 2 members (2 stalled)" in repr(study)
+    assert "NOT COMPLETED: 2 of 2 members (2 non-finite)" in study.summary()
+    assert "NOT COMPLETED: 2 of 2 members (2 non-finite)" in repr(study)

@@ -10,6 +10,7 @@ One module per stage, in the order of the algorithm:
 * :mod:`.impact`      the contact matrix, a dense solver, the impulses' LCP;
 * :mod:`.events`      event location inside a step (Illinois iteration);
 * :mod:`.modes`       contact modes: persistent contacts, forces, release;
+* :mod:`.fallback`    Moreau-Jean time-stepping, for what the exact method cannot resolve;
 * :mod:`.loop`        the loops: integrate, look, locate, resolve, record;
 * :mod:`.tolerances`  the tolerance row of one set of parameters (lengths, speeds, radii);
 * :mod:`.draws`       random numbers as a hash of (seed, member, stream, draw);
@@ -34,10 +35,10 @@ from numba.core import types
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
 from . import cache
-from .records import (TABLE, CROSSING, EXACT, NAIVE, RELEASE_AT, STEP, UPDATE, DONE, IMPACT_LOG_FULL,
-                      IMPULSE, MAX_EVENTS, NONFINITE, RELEASE, REST, STALLED, T_BOXV, T_EVENT, T_GAP, T_RBOX,
-                      T_RJACK, T_SPEED, T_VREST, T_WALL, Events, F8, I1, I2, I8, Model, Samples, Setup, SetupType,
-                      SIGNATURES, SIZES, V1, V2)
+from .records import (TABLE, CROSSING, EXACT, NAIVE, RELEASE_AT, STEP, UPDATE, DONE, FALLBACK, IMPACT_LOG_FULL,
+                      IMPULSE, MAX_EVENTS, MODE_SLOTS, NONFINITE, RELEASE, REST, STALLED, T_AREST, T_BOXV, T_EVENT,
+                      T_GAP, T_RBOX, T_RJACK, T_SPEED, T_VREST, T_WALL, WARN_LCP, WARN_LOCATE, WARNING, Events, F8, I1,
+                      I2, I8, Model, Samples, Setup, SetupType, SIGNATURES, SIZES, V1, V2)
 
 cache.install()
 
@@ -62,8 +63,8 @@ LOOPS = {
 }
 _loops: dict = {}
 
-__all__ = ["DONE", "IMPACT_LOG_FULL", "NONFINITE", "STALLED", "IMPULSE", "REST", "RELEASE", "MAX_EVENTS",
-           "T_GAP", "T_EVENT", "T_VREST", "T_BOXV", "T_WALL", "T_RJACK", "T_RBOX", "T_SPEED",
+__all__ = ["DONE", "IMPACT_LOG_FULL", "NONFINITE", "STALLED", "IMPULSE", "REST", "RELEASE", "FALLBACK", "WARNING",
+           "WARN_LCP", "WARN_LOCATE", "MAX_EVENTS", "MODE_SLOTS", "T_GAP", "T_EVENT", "T_VREST", "T_AREST", "T_BOXV", "T_WALL", "T_RJACK", "T_RBOX", "T_SPEED",
            "Model", "Samples", "Events", "Setup", "SIGNATURES", "SIZES", "ENTRIES", "LOOPS", "entry", "compiled_loop", "prepare", "table"]
 
 

@@ -17,11 +17,12 @@ from numba import njit
 
 from .gaps import hermite, hermite_extrema, step_reach
 from .modes import accel, contact_accel
-from .records import AF, GA, GB, GS, LAM, LAMA, LAMB, QB, QDB, QDS, QS, T_EVENT, VA, VB
+from .records import (AF, FLAGS, GA, GB, GS, LAM, LAMA, LAMB, LEV, LR, QB, QDB, QDS, QS, RIDX, T_AREST, T_EVENT, T_VREST, VA,
+                      VB, WARN_LOCATE)
 
 # kinds of event function (passed as np.int64: a bare literal would make Numba
 # compile one specialisation per value)
-GAP_EVENT = 0           #: a gap (plus T_EVENT / 2) reaches zero
+GAP_EVENT = 0           #: a gap plus its level (``ws.c[LEV]``) reaches zero
 FORCE_EVENT = 1         #: a persistent contact's force reaches zero
 
 
@@ -29,7 +30,7 @@ FORCE_EVENT = 1         #: a persistent contact's force reaches zero
 def event_value(model, step, kind, pos, ta, q, qd, s, p, tol, m, ws):
     """Re-step from (ta, q, qd) to time s; the event function there.
 
-    kind GAP_EVENT: gap ``pos`` plus T_EVENT / 2; FORCE_EVENT: the force of
+    kind GAP_EVENT: gap ``pos`` plus its level ``ws.c[LEV, pos]``; FORCE_EVENT: the force of
     persistent contact ``ws.k[RIDX][pos]``. The state at s is left in
     ``ws.n[QS]``, ``ws.n[QDS]``.
     """
@@ -38,7 +39,7 @@ def event_value(model, step, kind, pos, ta, q, qd, s, p, tol, m, ws):
     if kind == GAP_EVENT:
         g = ws.c[GS]
         model.phi(s, qs, p, g)
-        return g[pos] + 0.5 * tol[T_EVENT]
+        return g[pos] + ws.c[LEV, pos]
     accel(model, s, qs, qds, p, m, ws.n[AF], ws)
     return ws.c[LAM, pos]
 
@@ -47,7 +48,8 @@ def event_value(model, step, kind, pos, ta, q, qd, s, p, tol, m, ws):
 def locate(model, step, kind, pos, ta, q, qd, tl, fl, tr, fr, p, tol, m, ws):
     """Illinois iteration for the root of the event function in [tl, tr] (fl >= 0 > fr).
 
-    Returns (tl, tr) with tr - tl near machine precision, f(tl) >= 0 > f(tr).
+    Returns (tl, tr) with tr - tl near machine precision, f(tl) >= 0 > f(tr);
+    if 200 iterations do not get there, sets WARN_LOCATE in ``ws.k[FLAGS, 0]``.
     """
     side = 0
     ttol = 4.0 * 2.220446049250313e-16 * max(abs(tr), tr - ta)
@@ -68,6 +70,8 @@ def locate(model, step, kind, pos, ta, q, qd, tl, fl, tr, fr, p, tol, m, ws):
             if side == 1:
                 fl *= 0.5
             side = 1
+    if tr - tl > ttol:
+        ws.k[FLAGS, 0] |= WARN_LOCATE
     return tl, tr
 
 
@@ -94,11 +98,16 @@ def left_bracket(model, step, k, ta, h, fa, fb, da, db, sr, q, qd, p, tol, m, ws
 
 @njit(cache=True)
 def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
-    """The earliest time in (ta, tb] where a free gap crosses -T_EVENT/2, or -1.
+    """The earliest time in (ta, tb] where a free gap crosses its event level, or -1.
+
+    The level is -T_EVENT/2, where persistent contacts are held, except for a
+    contact that starts the step at or below it without approaching (the
+    contact update left it there, leaving or closed by round-off): its event is
+    a return to T_EVENT below that, so that it takes no event to leave.
 
     Uses the trial state at tb in ``ws.n[QB]``, ``ws.n[QDB]`` and its gaps
     ``ws.c[GB]``; the gaps at ta are ``ws.c[GA]``. On success the state just
-    before the crossing (every free gap >= -T_EVENT/2) is left in
+    before the crossing (every free gap above its level) is left in
     ``ws.n[QS]``, ``ws.n[QDS]`` and the returned value is its time; returns
     ta when a contact is already closing at ta with nothing to separate it (a
     touch).
@@ -106,18 +115,22 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
     C = model.n_contact
     h = tb - ta
     half = 0.5 * tol[T_EVENT]
+    deep = half + tol[T_EVENT]
     gap_kind = np.int64(GAP_EVENT)
-    ga, gb, va, vb = ws.c[GA], ws.c[GB], ws.c[VA], ws.c[VB]
+    ga, gb, va, vb, lev = ws.c[GA], ws.c[GB], ws.c[VA], ws.c[VB], ws.c[LEV]
     band = step_reach(qd, ws.n[QDB], h, tol)
     near = False
     for k in range(C):
-        if not rest[k] and min(ga[k], gb[k]) + half < band:
+        if not rest[k] and min(ga[k], gb[k]) + deep < band:
             near = True
             break
     if not near:
         return -1.0
     model.gap_rate(ta, q, qd, p, va)
     model.gap_rate(tb, ws.n[QB], ws.n[QDB], p, vb)
+    tiny = 1e-3 * tol[T_VREST]
+    for k in range(C):
+        lev[k] = deep if ga[k] + half < 0.0 and va[k] >= -tiny else half
     ext = ws.ext
     best_l = -1.0
     best_k = -1
@@ -125,7 +138,7 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
     for k in range(C):
         if rest[k]:
             continue
-        fa, fb = ga[k] + half, gb[k] + half
+        fa, fb = ga[k] + lev[k], gb[k] + lev[k]
         if min(fa, fb) >= band:
             continue
         da, db = h * va[k], h * vb[k]
@@ -159,18 +172,18 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
     if best_k < 0:
         return -1.0
     # The state just before the first crossing; any other gap already below
-    # zero there crossed earlier: locate it within [ta, best].
+    # its level there crossed earlier: locate it within [ta, best].
     for _ in range(C):
         event_value(model, step, gap_kind, np.int64(best_k), ta, q, qd, best_l, p, tol, m, ws)
         g = ws.c[GS]
         worst = -1
         for k in range(C):
-            if not rest[k] and g[k] + half < 0.0 and (worst < 0 or g[k] < g[worst]):
+            if not rest[k] and g[k] + lev[k] < 0.0 and (worst < 0 or g[k] + lev[k] < g[worst] + lev[worst]):
                 worst = k
         if worst < 0:
             return best_l
-        fr = g[worst] + half
-        fa, fb = ga[worst] + half, gb[worst] + half
+        fr = g[worst] + lev[worst]
+        fa, fb = ga[worst] + lev[worst], gb[worst] + lev[worst]
         sr = (best_l - ta) / h
         tl, fl = left_bracket(model, step, np.int64(worst), ta, h, fa, fb, h * va[worst], h * vb[worst], sr,
                               q, qd, p, tol, m, ws)
@@ -185,28 +198,37 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
 def first_release(model, step, ta, tb, q, qd, p, tol, m, ws):
     """When the earliest persistent contact's force turns negative in (ta, tb], or -1.
 
-    Returns the time just after the sign change (the force is negative there),
-    or ta when a force already pulls at ta.
+    A force pulls when it would accelerate its gap away faster than T_AREST
+    (below that the contact is still: round-off on a redundant set). Returns
+    the time just after the sign change (the force is negative there), or ta
+    when a force already pulls at ta. The contacts whose force pulls at tb
+    go to the contact update as a bit mask in ``ws.k[FLAGS, 1]``: it lets them
+    go unless the accelerations' LCP gives them a force (at the located zero
+    of a force its acceleration is zero too, and would count as still).
     """
-    lam_a, lam_b = ws.c[LAMA], ws.c[LAMB]
+    lam_a, lam_b, floor = ws.c[LAMA], ws.c[LAMB], ws.c[LR]
     contact_accel(model, tb, ws.n[QB], ws.n[QDB], p, m, ws.n[AF], ws)
-    pulls = False
+    pulls = 0
+    ridx = ws.k[RIDX]
     for i in range(m):
         lam_b[i] = ws.c[LAM, i]
-        if not lam_b[i] >= 0.0:     # (NaN too, as the force's minimum would)
-            pulls = True
+        floor[i] = -tol[T_AREST] / ws.A[i, i]      # the force that pulls the gap away at T_AREST
+        if not lam_b[i] >= floor[i]:     # (NaN too, as the force's minimum would)
+            pulls |= np.int64(1) << ridx[i]
     if not pulls:
         return -1.0
+    ws.k[FLAGS, 1] = pulls
     contact_accel(model, ta, q, qd, p, m, ws.n[AF], ws)
     for i in range(m):
         lam_a[i] = ws.c[LAM, i]
     best = -1.0
     for i in range(m):
-        if lam_b[i] >= 0.0:
+        if lam_b[i] >= floor[i]:
             continue
-        if lam_a[i] < 0.0:
+        if lam_a[i] < floor[i]:
             return ta
-        tl, tr = locate(model, step, np.int64(FORCE_EVENT), np.int64(i), ta, q, qd, ta, lam_a[i], tb, lam_b[i], p, tol, m, ws)
+        tl, tr = locate(model, step, np.int64(FORCE_EVENT), np.int64(i), ta, q, qd, ta, max(lam_a[i], 0.0), tb,
+                        lam_b[i], p, tol, m, ws)
         if best < 0.0 or tr < best:
             best = tr
     return best

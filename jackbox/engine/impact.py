@@ -19,7 +19,7 @@ accelerations, decides which resting contacts carry a force
 import numpy as np
 from numba import njit
 
-from .records import HIT, IDX, LAM, LR, LX, MAX_ENUMERATED, R, RHS, VT, WINV
+from .records import FLAGS, HIT, IDX, LAM, LR, LX, MAX_ENUMERATED, PERM, R, RHS, VT, WARN_LCP, WINV, Y
 
 
 @njit(cache=True)
@@ -75,33 +75,76 @@ def solve_dense(A, b, m, x, ws):
     return True
 
 
+#: a pivot below this fraction of the largest diagonal marks a dependent row (rank-revealing solve)
+RANK_TOL = 1e-11
+#: Gauss-Seidel sweeps for a contact set too large to enumerate, and its convergence test
+#: (complementarity violated by less than this fraction of the right-hand side's scale)
+PGS_SWEEPS, PGS_TOL = 20000, 1e-12
+
+
 @njit(cache=True)
-def solve_regularised(A, rhs, m, x, ws):
-    """Solve ``A x = rhs`` for PSD A; a redundant contact set gets a tiny diagonal shift."""
-    if solve_dense(A, rhs, m, x, ws):
-        return
+def solve_psd(A, b, m, x, ws):
+    """Solve ``A[:m, :m] x = b[:m]`` for a symmetric positive semi-definite A, revealing its rank.
+
+    Symmetric elimination with diagonal pivoting: the largest remaining
+    diagonal is eliminated first; once every remaining one is below RANK_TOL
+    of the largest, those rows depend on the others (a redundant contact set:
+    a square jack flush in a corner touches four times with three degrees of
+    freedom) and their unknowns are 0, so the others carry the whole answer.
+    For a consistent system (held contacts of one rigid motion) that solves it
+    exactly, where a diagonal shift would leave a residual. Returns the rank.
+    """
+    a, r, y, perm = ws.lu, ws.c[R], ws.c[Y], ws.k[PERM]
     scale = 0.0
     for i in range(m):
-        scale = max(scale, A[i, i])
-    B = ws.sub
-    for i in range(m):
+        r[i] = b[i]
+        perm[i] = i
         for k in range(m):
-            B[i, k] = A[i, k]
-        B[i, i] += 1e-10 * scale
-    if not solve_dense(B, rhs, m, x, ws):
-        for i in range(m):
-            x[i] = 0.0
+            a[i, k] = A[i, k]
+        scale = max(scale, A[i, i])
+    rank = 0
+    for col in range(m):
+        piv = col
+        for j in range(col + 1, m):
+            if a[j, j] > a[piv, piv]:
+                piv = j
+        if not a[piv, piv] > RANK_TOL * scale:
+            break
+        if piv != col:      # swap row and column col with piv
+            for k in range(m):
+                a[col, k], a[piv, k] = a[piv, k], a[col, k]
+            for k in range(m):
+                a[k, col], a[k, piv] = a[k, piv], a[k, col]
+            r[col], r[piv] = r[piv], r[col]
+            perm[col], perm[piv] = perm[piv], perm[col]
+        for row in range(col + 1, m):
+            f = a[row, col] / a[col, col]
+            for k in range(col, m):
+                a[row, k] -= f * a[col, k]
+            r[row] -= f * r[col]
+        rank += 1
+    for row in range(rank - 1, -1, -1):
+        s = r[row]
+        for k in range(row + 1, rank):
+            s -= a[row, k] * y[k]
+        y[row] = s / a[row, row]
+    for i in range(m):
+        x[perm[i]] = y[i] if i < rank else 0.0
+    return rank
 
 
 @njit(cache=True)
 def solve_lcp(A, b, m, lam, ws):
-    """Impulses (or forces) of the LCP ``w = A lam + b >= 0, lam >= 0, w . lam = 0``.
+    """Impulses (or forces) of the LCP ``w = A lam + b >= 0, lam >= 0, w . lam = 0``; False if unsolved.
 
     Exact for up to MAX_ENUMERATED contacts: tries every active set, smallest
     first, and keeps the first whose impulses are non-negative and whose
     inactive contacts do not approach. ``A = J M^-1 J^T`` is positive
-    semi-definite, so a solution exists and the velocities it gives are unique.
-    Larger sets use projected Gauss-Seidel.
+    semi-definite, so a solution exists and the velocities it gives are unique
+    (the impulses are not, on a redundant set: the smallest set that works is
+    kept). Larger sets use projected Gauss-Seidel, run until complementarity
+    holds to PGS_TOL; returns False (and sets WARN_LCP in ``ws.k[FLAGS, 0]``)
+    if it does not within PGS_SWEEPS.
     """
     bscale = 0.0
     for k in range(m):
@@ -142,16 +185,28 @@ def solve_lcp(A, b, m, lam, ws):
                         if w < -tol:
                             ok = False
                 if ok:
-                    return
+                    return True
+        # no enumerated set passed the tolerances (round-off on a degenerate set): Gauss-Seidel
     # Projected Gauss-Seidel: converges for PSD A; used for very large contact sets.
     for k in range(m):
         lam[k] = 0.0
-    for sweep in range(1000):
+    for sweep in range(PGS_SWEEPS):
         for k in range(m):
             w = b[k]
             for j in range(m):
                 w += A[k, j] * lam[j]
             lam[k] = max(0.0, lam[k] - w / max(A[k, k], 1e-300))
+        worst = 0.0
+        for k in range(m):
+            w = b[k]
+            for j in range(m):
+                w += A[k, j] * lam[j]
+            # violated: w < 0, or a force where w > 0 (measured as the w it leaves)
+            worst = max(worst, -w, min(w, lam[k] * A[k, k]))
+        if worst <= PGS_TOL * bscale:
+            return True
+    ws.k[FLAGS, 0] |= WARN_LCP
+    return False
 
 
 @njit(cache=True)

@@ -3,8 +3,10 @@
 :func:`integrate_exact` (method "exact") integrates a step (:mod:`.integrator`,
 or :mod:`.flight` far from every wall), looks at the gaps at both of its ends,
 locates the first event inside it (:mod:`.events`), resolves it (impulses and
-the persistent set, :mod:`.modes`) and steps on from there; samples are
-recorded on the grid. :func:`integrate` (method "naive": the model's free_step on floats) applies impulses at
+the persistent set, :mod:`.modes`) and steps on from there; a step it cannot
+resolve (no progress, or too many contact mode changes) is undone and taken,
+with those after it until the contacts are stable, by Moreau-Jean
+time-stepping (:mod:`.fallback`); samples are recorded on the grid. :func:`integrate` (method "naive": the model's free_step on floats) applies impulses at
 the end of the step in which a gap went negative.
 
 Both loops are compiled once for every model, as ``cfunc`` values of the
@@ -20,12 +22,15 @@ a :class:`~jackbox.engine.records.Stages` record of function values.
 
 import math
 
+import numpy as np
 from numba import njit
 
+from .fallback import moreau_step
 from .impact import resolve_impacts
-from .modes import project_rest, rest_index
-from .records import (DONE, GA, GB, IMPACT_LOG_FULL, NONFINITE, Q0, QB, QD0, QDB, QDS, QS, REST0, RIDX,
-                      STALLED, MAX_EVENTS, T_EVENT, EXACT_AT, MODEL_AT, NAIVE_AT, STAGES_AT, ExactType, ModelType,
+from .modes import log_event, project_rest, rest_index
+from .records import (DONE, FALLBACK, FLAGS, GA, GB, HANDOFF, IMPACT_LOG_FULL, MAX_EVENTS, MODE_AT, MODE_BUDGET,
+                      MODE_SLOTS, NONFINITE, ZENO_PASSES, ZENO_SPAN, Q0, QB, QD0, QDB, QDS, QS, RELEASE, RIDX, SET_AT, STABLE_STEPS, T_EVENT,
+                      WARN_LCP, WARN_LOCATE, WARNING, EXACT_AT, MODEL_AT, NAIVE_AT, STAGES_AT, ExactType, ModelType,
                       NaiveType, StagesType, Events, Samples, borrow, from_table, keep, scratch)
 from .gaps import step_reach
 
@@ -92,32 +97,53 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
 
     On entry ``ws.c[GA]`` holds the gaps at (ta, q); on return those at (tb, q).
     trial: the RK4 step from ta to tb and its gaps are already in
-    ``ws.n[QB]``, ``ws.n[QDB]`` and ``ws.c[GB]``. Returns ``(n_ev, m, status)``.
+    ``ws.n[QB]``, ``ws.n[QDB]`` and ``ws.c[GB]``. Returns ``(n_ev, m, status)``:
+    DONE, or HANDOFF when the step is for the fallback (:mod:`.fallback`): an
+    event made no progress twice, the contact modes changed more than
+    MODE_BUDGET times, ZENO_PASSES passes advanced by less than ZENO_SPAN of
+    the step (Zeno in several contacts), or MAX_EVENTS passes did not reach tb.
     """
     n = model.n_dof
+    C = model.n_contact
+    level = 0.5 * tol[T_EVENT]
     target = tb
     releasing = False
+    watch_release = True     # off for the rest of the step once a release changed nothing
     stuck = 0
+    changes = 0
+    t_mark = ta
+    span = ZENO_SPAN * (tb - ta)
     qb, qdb = ws.n[QB], ws.n[QDB]
     ga, gb = ws.c[GA], ws.c[GB]
-    for _ in range(MAX_EVENTS):
+    for passes in range(1, MAX_EVENTS + 1):
+        if passes % ZENO_PASSES == 0:
+            if ta - t_mark < span:
+                return n_ev, m, HANDOFF
+            t_mark = ta
         if not trial:
             stages.step(model, ta, q, qd, target - ta, p, qb, qdb, m, ws)
-        if m > 0 and not releasing:
+        if m > 0 and watch_release and not releasing:
             tr = stages.release(model, stages.step, ta, target, q, qd, p, tol, m, ws)
-            if tr == ta:       # a persistent contact already pulls: let it go now
-                n_ev, m = stages.update(model, ta, q, qd, p, tol, rest, ws, log, n_ev, 1.0)
+            if tr == ta:       # a persistent contact already pulls: the contact update decides
+                m0 = m
+                n_ev, m = stages.update(model, ta, q, qd, p, tol, rest, ws, log, n_ev)
+                if m == m0:
+                    watch_release = False
+                else:
+                    changes += 1
                 model.phi(ta, q, p, ga)
+                trial = False
                 continue
             if tr > ta:        # step to where it lets go (gaps are checked on the way)
                 target = tr
                 releasing = True
+                trial = False
                 continue
         if not trial:
             model.phi(target, qb, p, gb)
         trial = False
-        if stuck >= 3:
-            return n_ev, m, STALLED
+        if stuck >= 2 or changes > MODE_BUDGET:
+            return n_ev, m, HANDOFF
         te = stages.crossing(model, stages.step, ta, target, q, qd, p, tol, rest, m, ws)
         if te >= 0.0:
             if te > ta:
@@ -129,15 +155,16 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
                 stuck = 0
             else:
                 stuck += 1
-            # An event at the same instant that changed nothing: a contact
-            # touching at round-off level with no resolvable motion. Next time
-            # treat every slow contact as at rest; if that changes nothing
-            # either, stop (STALLED) rather than let a body through a wall.
+            # An event at the same instant that changes nothing (a contact
+            # touching at round-off level with no resolvable motion) twice
+            # running: the step goes to the fallback.
             n0, m0 = n_ev, m
-            n_ev, m = stages.update(model, ta, q, qd, p, tol, rest, ws, log, n_ev,
-                                      1.0 if stuck < 2 else 1e6)
+            ws.k[FLAGS, 1] = 0       # an impact before the release: nothing is being let go
+            n_ev, m = stages.update(model, ta, q, qd, p, tol, rest, ws, log, n_ev)
             if n_ev != n0 or m != m0:
                 stuck = 0
+            if m != m0:
+                changes += 1
             model.phi(ta, q, p, ga)
             target = tb
             releasing = False
@@ -148,28 +175,92 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
             qd[d] = qdb[d]
         ta = target
         if m > 0:
-            project_rest(model, ta, q, qd, p, m, ws)
+            project_rest(model, ta, q, qd, p, m, level, ws)
             model.phi(ta, q, p, ga)
         else:
-            for k in range(model.n_contact):
+            for k in range(C):
                 ga[k] = gb[k]
         if releasing:          # arrived where a persistent contact lets go
-            n_ev, m = stages.update(model, ta, q, qd, p, tol, rest, ws, log, n_ev, 1.0)
+            m0 = m
+            n_ev, m = stages.update(model, ta, q, qd, p, tol, rest, ws, log, n_ev)
+            if m == m0:
+                watch_release = False
+            else:
+                changes += 1
             model.phi(ta, q, p, ga)
             target = tb
             releasing = False
             continue
         if ta == tb:
             return n_ev, m, DONE
-    return n_ev, m, STALLED
+    return n_ev, m, HANDOFF
+
+
+@njit(cache=True)
+def fallback_step(model, stages, t, h, q, qd, p, tol, rest, ws, log, n_ev):
+    """One Moreau-Jean step (:mod:`.fallback`); hands back to the exact method once the contacts are stable.
+
+    At the hand-over the contacts the fallback ended closed are put exactly
+    on the event level with no normal rate (its first-order state leaves them
+    a little off, and the exact method would see a fall and a new Zeno
+    cascade), and the contact update finds the persistent set from the
+    accelerations' LCP. Returns ``(n_ev, m)``: m the persistent contacts the
+    exact method starts with (0 while the fallback goes on).
+    """
+    C = model.n_contact
+    mask = moreau_step(model, t, h, q, qd, p, tol, ws)
+    if mask == rest[C + SET_AT]:
+        rest[C + MODE_AT] += 1
+    else:
+        rest[C + MODE_AT] = 1
+        rest[C + SET_AT] = mask
+    if rest[C + MODE_AT] <= STABLE_STEPS:
+        return n_ev, 0
+    rest[C + MODE_AT] = 0
+    rest[C + SET_AT] = 0
+    t_next = t + h
+    n_ev = log_event(t_next, 0, np.int64(FALLBACK), log, n_ev)
+    if mask:
+        for k in range(C):
+            rest[k] = mask >> k & 1
+        project_rest(model, t_next, q, qd, p, rest_index(rest, C, ws.k[RIDX]), 0.5 * tol[T_EVENT], ws)
+        for k in range(C):
+            rest[k] = 0
+    return stages.update(model, t_next, q, qd, p, tol, rest, ws, log, n_ev)
+
+
+@njit(cache=True)
+def enter_fallback(t, rest, C, log, n_ev):
+    """Log the hand-over to the fallback at t: the persistent contacts are let go (the fallback has none)."""
+    n_ev = log_event(t, 1, np.int64(FALLBACK), log, n_ev)
+    for k in range(C):
+        if rest[k]:
+            n_ev = log_event(t, k, np.int64(RELEASE), log, n_ev)
+            rest[k] = 0
+    rest[C + MODE_AT] = 1
+    rest[C + SET_AT] = -1
+    return n_ev
+
+
+@njit(cache=True)
+def log_warnings(t, ws, log, n_ev):
+    """A WARNING event for each solver failure flagged in ``ws.k[FLAGS, 0]`` since the last call."""
+    flags = ws.k[FLAGS, 0]
+    if flags:
+        for code in (WARN_LCP, WARN_LOCATE):
+            if flags & code:
+                n_ev = log_event(t, code, np.int64(WARNING), log, n_ev)
+        ws.k[FLAGS, 0] = 0
+    return n_ev
 
 
 def integrate_exact(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every,
                     out, n_rec, log, n_ev):
     """Method "exact": like :func:`integrate`, with every contact event located.
 
-    rest: (n_contact,) 0/1 persistent contacts, carried between calls. tol: the
-    ``T_*`` slots. log: the event log (time, contact, IMPULSE/REST/RELEASE).
+    rest: (n_contact + MODE_SLOTS,) the contacts' modes (0 free, 1 persistent)
+    and the fallback's state, carried between calls. tol: the ``T_*`` slots.
+    log: the event log (time, contact, IMPULSE/REST/RELEASE/FALLBACK/WARNING).
     Returns ``(step reached, n_rec, n_ev, status)``.
 
     Every array goes on to the stages as a borrowed view: the arguments live
@@ -187,25 +278,29 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
                 log, n_ev, ws):
     """The body of :func:`integrate_exact`, on borrowed views and its scratch ``ws``."""
     n, C = model.n_dof, model.n_contact
-    m = rest_index(rest, ws.k[RIDX])
+    m = rest_index(rest, C, ws.k[RIDX])
     if i_begin == 0 and n_rec == 0:   # (not again when resumed after a full log)
-        n_ev, m = stages.update(model, t0, q, qd, p, tol, rest, ws, log, n_ev, 1.0)
+        rest[C + MODE_AT] = 0
+        n_ev, m = stages.update(model, t0, q, qd, p, tol, rest, ws, log, n_ev)
+        n_ev = log_warnings(t0, ws, log, n_ev)
         record(model, t0, q, qd, p, n_rec, out, ws.box)
         n_rec += 1
     ga, gb = ws.c[GA], ws.c[GB]
     qb, qdb = ws.n[QB], ws.n[QDB]
-    q0, qd0, rest0 = ws.n[Q0], ws.n[QD0], ws.k[REST0]
-    model.phi(t0 + i_begin * dt, q, p, ga)
-    ga_ok = True             # ga holds the gaps of the current state
+    q0, qd0, rest0 = ws.n[Q0], ws.n[QD0], ws.rest0
+    ga_ok = False            # whether ga holds the gaps of the current state
     clear = model.clearance(t0 + i_begin * dt, q, p, tol)      # a bound on every gap
     half = 0.5 * tol[T_EVENT]
     next_rec = (i_begin // record_every + 1) * record_every
     i = i_begin
+    capacity = log.t.shape[0]
     while i < i_end:
-        if m == 0:
+        have_trial = False
+        if m == 0 and rest[C + MODE_AT] == 0:
             # Free flight far from every wall: the lean loop, on floats only.
             i_stop = min(i_end, next_rec)
             i_fly, clear = model.fly(t0, dt, i, i_stop, q, qd, p, tol, clear, qb, qdb)
+            have_trial = True        # fly() stops before a step that needs care, its trial in qb, qdb
             if i_fly > i:
                 ga_ok = False
                 i = i_fly
@@ -220,46 +315,64 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
                 continue
         t = t0 + i * dt
         t_next = t0 + (i + 1) * dt
-        # The step with gap rows: quiet when every gap, at both ends of the
-        # step, is further from contact than the step can move it.
-        quiet = False
-        if m == 0:             # fly() stopped before this step and left its trial in qb, qdb
-            band = step_reach(qd, qdb, dt, tol) - half
-            if not ga_ok:
-                model.phi(t, q, p, ga)
-                ga_ok = True
-            model.phi(t_next, qb, p, gb)
-            quiet = True
-            for k in range(C):
-                if min(ga[k], gb[k]) < band:
-                    quiet = False
-                    break
-        if quiet:
-            for d in range(n):
-                q[d] = qb[d]
-                qd[d] = qdb[d]
-            for k in range(C):
-                ga[k] = gb[k]
+        for d in range(n):
+            q0[d] = q[d]
+            qd0[d] = qd[d]
+        for k in range(C + MODE_SLOTS):
+            rest0[k] = rest[k]
+        n_before = n_ev
+        if rest[C + MODE_AT] == -1:       # find the contact set again (a chaos twin was moved)
+            rest[C + MODE_AT] = 0
+            n_ev, m = stages.update(model, t, q, qd, p, tol, rest, ws, log, n_ev)
+            ga_ok = False
+            have_trial = False
+        if rest[C + MODE_AT] > 0:
+            n_ev, m = fallback_step(model, stages, t, dt, q, qd, p, tol, rest, ws, log, n_ev)
+            ga_ok = False
         else:
+            # The step with gap rows: quiet when every gap, at both ends of the
+            # step, is further from contact than the step can move it.
             if not ga_ok:
                 model.phi(t, q, p, ga)
                 ga_ok = True
-            for d in range(n):
-                q0[d] = q[d]
-                qd0[d] = qd[d]
-            for k in range(C):
-                rest0[k] = rest[k]
-            n_before = n_ev
-            n_ev, m, status = advance(model, stages, t, t_next, q, qd, p, tol, rest, m, ws, log, n_ev, m == 0)
-            if n_ev > log.t.shape[0]:   # the log overflowed: undo the step, the caller grows it
-                for d in range(n):
-                    q[d] = q0[d]
-                    qd[d] = qd0[d]
+            quiet = False
+            trial = False
+            if m == 0:
+                if not have_trial:
+                    model.free_step(t, q, qd, dt, p, qb, qdb)
+                band = step_reach(qd, qdb, dt, tol) - half
+                model.phi(t_next, qb, p, gb)
+                trial = True
+                quiet = True
                 for k in range(C):
-                    rest[k] = rest0[k]
-                return i, n_rec, n_before, IMPACT_LOG_FULL
-            if status != DONE:
-                return i, n_rec, n_ev, status
+                    if min(ga[k], gb[k]) < band:
+                        quiet = False
+                        break
+            if quiet:
+                for d in range(n):
+                    q[d] = qb[d]
+                    qd[d] = qdb[d]
+                for k in range(C):
+                    ga[k] = gb[k]
+            else:
+                n_ev, m, status = advance(model, stages, t, t_next, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
+                if status == HANDOFF:    # undo the step: the fallback takes it
+                    for d in range(n):
+                        q[d] = q0[d]
+                        qd[d] = qd0[d]
+                    for k in range(C + MODE_SLOTS):
+                        rest[k] = rest0[k]
+                    n_ev = enter_fallback(t, rest, C, log, n_before)
+                    n_ev, m = fallback_step(model, stages, t, dt, q, qd, p, tol, rest, ws, log, n_ev)
+                    ga_ok = False
+        n_ev = log_warnings(t_next, ws, log, n_ev)
+        if n_ev > capacity:   # the log overflowed: undo the step, the caller grows it
+            for d in range(n):
+                q[d] = q0[d]
+                qd[d] = qd0[d]
+            for k in range(C + MODE_SLOTS):
+                rest[k] = rest0[k]
+            return i, n_rec, n_before, IMPACT_LOG_FULL
         clear = model.clearance(t_next, q, p, tol)
         i += 1
         for d in range(n):

@@ -19,13 +19,14 @@ import numpy as np
 from numba import njit, prange
 
 from .draws import START, TWIN, draw_normal, draw_uniform
-from .records import (DONE, EXACT_AT, IMPACT_LOG_FULL, IMPULSE, MODEL_AT, STAGES_AT, T_BOXV, Events, ExactType,
-                      ModelType, Samples, StagesType, from_table)
+from .records import (DONE, EXACT_AT, FALLBACK, IMPACT_LOG_FULL, IMPULSE, MODE_AT, MODE_SLOTS, MODEL_AT, STAGES_AT,
+                      T_BOXV, WARNING, Events, ExactType, ModelType, Samples, StagesType, from_table)
 from .tolerances import set_tolerances
 
-#: tally slots of one member: impulses so far, time of the first one (NaN if none)
-TALLY_IMPULSES = 0
-TALLY_FIRST = 1
+#: tally slots of one member: impulses so far, time of the first one (NaN if none), when the
+#: fallback now running began (NaN: none runs), time spent in the fallback so far, solver warnings
+TALLY_IMPULSES, TALLY_FIRST, TALLY_SINCE, TALLY_FALLBACK, TALLY_WARNINGS = range(5)
+TALLY = 5
 #: first size of a member's event log (it doubles when one step needs more)
 LOG_SIZE = 256
 
@@ -39,7 +40,7 @@ def new_log(size):
 def run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, stop, out, n_rec, log, tally):
     """Steps i..stop of one member through any number of full event logs.
 
-    Counts impulses into tally; records a sample at stop (into ``out`` at
+    Counts impulses, time in the fallback and warnings into tally; records a sample at stop (into ``out`` at
     n_rec; on the first call, with i = 0 and n_rec = 0, also the start).
     Returns ``(step reached, n_rec, status, log)``: the log is a new, bigger
     one when a single step needed more room.
@@ -48,14 +49,44 @@ def run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, stop, out, n_r
         i, n_rec, n_ev, status = exact(model, stages, q, qd, rest, p, tol, 0.0, dt, i, stop, stop, stop + 1,
                                                  out, n_rec, log, 0)
         for j in range(n_ev):
-            if log.kind[j] == IMPULSE:
+            kind = log.kind[j]
+            if kind == IMPULSE:
                 if tally[TALLY_IMPULSES] == 0.0:
                     tally[TALLY_FIRST] = log.t[j]
                 tally[TALLY_IMPULSES] += 1.0
+            elif kind == FALLBACK:
+                if log.k[j] == 1:
+                    tally[TALLY_SINCE] = log.t[j]
+                else:
+                    tally[TALLY_FALLBACK] += log.t[j] - tally[TALLY_SINCE]
+                    tally[TALLY_SINCE] = np.nan
+            elif kind == WARNING:
+                tally[TALLY_WARNINGS] += 1.0
         if status != IMPACT_LOG_FULL:
             return i, n_rec, status, log
         if n_ev == 0:    # one step has more events than the log holds
             log = new_log(2 * log.t.shape[0])
+
+
+@njit(cache=True)
+def new_tally():
+    tally = np.zeros(TALLY)
+    tally[TALLY_FIRST] = np.nan
+    tally[TALLY_SINCE] = np.nan
+    return tally
+
+
+@njit(cache=True)
+def fallback_time(tally, t):
+    """Time spent in the fallback up to t (a stretch still running counted up to t)."""
+    since = tally[TALLY_SINCE]
+    return tally[TALLY_FALLBACK] + (t - since if since == since else 0.0)
+
+
+@njit(cache=True)
+def new_modes(model):
+    """A run's mode array (see :func:`~.loop.integrate_exact`): every contact free, the exact method on."""
+    return np.zeros(model.n_contact + MODE_SLOTS, np.int64)
 
 
 @njit(cache=True)
@@ -69,14 +100,14 @@ def run_member(model, exact, stages, q0, qd0, p, tol, dt, n_steps, sample_steps,
 
     sample_steps: ascending steps in [0, n_steps] whose (6-column) state goes
     to samp_q[s], samp_qd[s]. fin_q, fin_qd: the final state (6 columns).
-    fin: [energy, impulses, first impulse time, status, step reached].
+    fin: [energy, impulses, first impulse time, status, step reached, seconds in
+    the fallback, solver warnings].
     """
     q, qd = q0.copy(), qd0.copy()
-    rest = np.zeros(model.n_contact, np.int64)
+    rest = new_modes(model)
     log = new_log(LOG_SIZE)
     out = new_samples(2)
-    tally = np.zeros(2)
-    tally[TALLY_FIRST] = np.nan
+    tally = new_tally()
     # step 0: the start, after any impulse a touching start state gets
     i, n_rec, status, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, 0, 0, out, 0, log, tally)
     s = 0
@@ -103,6 +134,8 @@ def run_member(model, exact, stages, q0, qd0, p, tol, dt, n_steps, sample_steps,
     fin[2] = tally[TALLY_FIRST]
     fin[3] = status
     fin[4] = i
+    fin[5] = fallback_time(tally, i * dt)
+    fin[6] = tally[TALLY_WARNINGS]
 
 
 @njit(cache=True, inline="always")
@@ -135,7 +168,10 @@ def run_twins(model, exact, stages, q0, qd0, dq, dqd, p, tol, dt, n_steps, renor
     separation d (state difference divided by ``scale``, per coordinate) is
     measured, log(d / d0) goes to stretch[k], and the twin is put back at
     distance d0 along the current separation (Benettin's renormalisation).
-    fin: [impulses of the reference, status, step reached].
+    After each renormalisation the twin's contact set is found again (its
+    state moved): the contact update runs at its next step.
+    fin: [impulses of the reference, status, step reached, seconds either
+    twin spent in the fallback, solver warnings of both].
     """
     n = model.n_dof
     q, qd = q0.copy(), qd0.copy()
@@ -144,10 +180,10 @@ def run_twins(model, exact, stages, q0, qd0, dq, dqd, p, tol, dt, n_steps, renor
     for d in range(n):
         d0 += (dq[d] / scale[d]) ** 2 + (dqd[d] / scale[n + d]) ** 2
     d0 = math.sqrt(d0)
-    rest, rest_t = np.zeros(model.n_contact, np.int64), np.zeros(model.n_contact, np.int64)
+    rest, rest_t = new_modes(model), new_modes(model)
     log, log_t = new_log(LOG_SIZE), new_log(LOG_SIZE)
     out = new_samples(2)
-    tally, tally_t = np.zeros(2), np.zeros(2)
+    tally, tally_t = new_tally(), new_tally()
     i = 0
     i2 = 0
     status = DONE
@@ -178,13 +214,16 @@ def run_twins(model, exact, stages, q0, qd0, dq, dqd, p, tol, dt, n_steps, renor
             for d in range(n):
                 qt[d] = q[d] + f * (qt[d] - q[d])
                 qdt[d] = qd[d] + f * (qdt[d] - qd[d])
-        rest_t[:] = rest
+        if rest_t[model.n_contact + MODE_AT] == 0:
+            rest_t[model.n_contact + MODE_AT] = -1
         k += 1
     for j in range(k, stretch.shape[0]):
         stretch[j] = np.nan
     fin[0] = tally[TALLY_IMPULSES]
     fin[1] = status
     fin[2] = i
+    fin[3] = fallback_time(tally, i * dt) + fallback_time(tally_t, i2 * dt)
+    fin[4] = tally[TALLY_WARNINGS] + tally_t[TALLY_WARNINGS]
 
 
 @njit(cache=True)

@@ -3,7 +3,13 @@
 Between events the state follows the dynamics with the persistent contacts R
 held closed: ``qdd = M^-1 f + M^-1 J_R^T lam``, with ``lam`` solving
 ``(J_R M^-1 J_R^T) lam = -(J_R M^-1 f + gap_bias_R)`` (gap accelerations
-zero).
+zero), by a rank-revealing solve (:func:`~.impact.solve_psd`): every held
+row is held, also on a redundant set, where the forces are not unique.
+
+Contacts are held at the level where events are located, ``gap = -T_EVENT/2``
+(:func:`project_rest` puts them there): a contact let go falls from that level,
+not from gap 0 through the extra half band, so it comes back at the speed its
+flight gives it, not at ``sqrt(|a| T_EVENT)``.
 
 Integers passed on to other jitted functions are wrapped in ``np.int64``: a
 value Numba can see as a constant (a literal 0, a global) would otherwise make
@@ -17,16 +23,16 @@ off the held contacts after each step.
 import numpy as np
 from numba import njit
 
-from .impact import contact_matrix, solve_lcp, solve_regularised
-from .records import (ACC, BIAS, CAND, GS, HIT, IMPULSE, LAM, NEAR, NEWREST, RELEASE, REST, RHS,
-                      RIDX, T_GAP, T_VREST, VB, WINV)
+from .impact import contact_matrix, solve_lcp, solve_psd
+from .records import (ACC, BIAS, CAND, FLAGS, GS, HIT, IMPULSE, LAM, NEAR, NEWREST, RELEASE, REST, RHS,
+                      RIDX, T_AREST, T_EVENT, T_GAP, T_VREST, VB, WINV)
 
 
 @njit(cache=True)
-def rest_index(rest, ridx):
-    """Indices of the persistent contacts into ridx; returns their number."""
+def rest_index(rest, C, ridx):
+    """Indices of the persistent contacts (of the first C slots of ``rest``) into ridx; returns their number."""
     m = 0
-    for k in range(rest.shape[0]):
+    for k in range(C):
         if rest[k]:
             ridx[m] = k
             m += 1
@@ -84,13 +90,17 @@ def contact_accel(model, t, q, qd, p, m, a, ws):
         for d in range(n):
             s += jac[k, d] * a[d]
         rhs[i] = -s
-    solve_regularised(A, rhs, m, lam, ws)
+    solve_psd(A, rhs, m, lam, ws)
     add_response(jac, winv, ridx, m, lam, n, a)
 
 
 @njit(cache=True)
-def project_rest(model, t, q, qd, p, m, ws):
-    """Put the persistent contacts back on gap = 0 and rate = 0 (removes RK4's drift)."""
+def project_rest(model, t, q, qd, p, m, level, ws):
+    """Put the persistent contacts back on gap = -level and rate = 0 (removes RK4's drift).
+
+    The smallest correction in the metric of M onto every held row (a
+    redundant set included: :func:`~.impact.solve_psd`).
+    """
     n = model.n_dof
     ridx, jac, A = ws.k[RIDX], ws.jac, ws.A
     winv = ws.n[WINV]
@@ -101,15 +111,15 @@ def project_rest(model, t, q, qd, p, m, ws):
         model.phi_q(t, q, p, jac)
         contact_matrix(jac, winv, ridx, m, A)
         for i in range(m):
-            rhs[i] = -g[ridx[i]]
-        solve_regularised(A, rhs, m, x, ws)
+            rhs[i] = -(g[ridx[i]] + level)
+        solve_psd(A, rhs, m, x, ws)
         add_response(jac, winv, ridx, m, x, n, q)
     model.phi_q(t, q, p, jac)
     contact_matrix(jac, winv, ridx, m, A)
     model.gap_rate(t, q, qd, p, g)
     for i in range(m):
         rhs[i] = -g[ridx[i]]
-    solve_regularised(A, rhs, m, x, ws)
+    solve_psd(A, rhs, m, x, ws)
     add_response(jac, winv, ridx, m, x, n, qd)
 
 
@@ -124,16 +134,23 @@ def log_event(t, k, kind, log, n_ev):
 
 
 @njit(cache=True)
-def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev, vscale):
+def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
     """At an event: impulses for the contacts that take part, then the persistent set.
 
     Contacts closer than T_GAP take part when they approach or are still.
     Approaching ones get Newton's law (restitution e, or 0 for speeds below
-    T_VREST * vscale: those come to rest); all are solved together. Then the
-    contacts that are closed and still get the accelerations' LCP
-    ``w = A lam + (J a + bias) >= 0, lam >= 0, w.lam = 0``; those with a force
-    stay (or become) persistent, the others are released. vscale (normally 1)
-    widens "at rest" when an event made no progress.
+    T_VREST: those come to rest); all are solved together. Then every contact
+    that is closed and still gets the accelerations' LCP
+    ``w = A lam + (J a + bias) >= 0, lam >= 0, w.lam = 0``: those that would
+    not accelerate away (a force, or a gap acceleration below T_AREST: the
+    dependent rows of a redundant set) stay (or become) persistent, the
+    others are released; so are those whose force was found pulling
+    (``ws.k[FLAGS, 1]``, set by :func:`~.events.first_release`) unless the LCP
+    gives them a force. The accelerations are unique where the forces are
+    not, so the held set does not depend on which forces the solver picked.
+
+    After the update no free contact within T_GAP approaches or presses: each
+    either leaves (a positive rate, or a positive acceleration) or is held.
     Returns ``(n_ev, m)`` with m the number of persistent contacts.
     """
     n, C = model.n_dof, model.n_contact
@@ -157,7 +174,7 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev, vscale):
             if rest[k]:
                 rest[k] = 0
         return n_ev, 0
-    vrest = tol[T_VREST] * vscale
+    vrest = tol[T_VREST]
     tiny = 1e-3 * tol[T_VREST]  # normal speeds below this are round-off
     # The impact: contacts that approach or are closed and still. A receding
     # contact takes no part: an impulse there would push it apart while the
@@ -213,15 +230,20 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev, vscale):
             w0[i] = s
         solve_lcp(A, w0, np.int64(c), force, ws)
         for i in range(c):
-            if force[i] > 0.0:
+            w = w0[i]
+            for j in range(c):
+                w += A[i, j] * force[j]
+            letting_go = ws.k[FLAGS, 1] >> cand[i] & 1
+            if force[i] > 0.0 or (w < tol[T_AREST] and not letting_go):
                 newrest[cand[i]] = 1
+    ws.k[FLAGS, 1] = 0
     for k in range(C):
         if newrest[k] and not rest[k]:
             n_ev = log_event(t, k, np.int64(REST), log, n_ev)
         elif rest[k] and not newrest[k]:
             n_ev = log_event(t, k, np.int64(RELEASE), log, n_ev)
         rest[k] = newrest[k]
-    m = rest_index(rest, ws.k[RIDX])
+    m = rest_index(rest, C, ws.k[RIDX])
     if m > 0:
-        project_rest(model, t, q, qd, p, m, ws)
+        project_rest(model, t, q, qd, p, m, 0.5 * tol[T_EVENT], ws)
     return n_ev, m

@@ -22,17 +22,37 @@ from numba.extending import intrinsic
 DONE = 0
 IMPACT_LOG_FULL = 1     #: the event log is full: the caller grows it and calls again from the step returned
 NONFINITE = 2
-STALLED = 3
+STALLED = 3             #: (no longer returned by the exact loop: a step it cannot resolve goes to the fallback)
+HANDOFF = 4             #: (inside the exact loop only) this step goes to the fallback
 
 # kinds of contact events in the event log
 IMPULSE = 0             #: an impulse acted on the contact
 REST = 1                #: the contact became persistent (gap held at zero)
 RELEASE = 2             #: a persistent contact let go (its force would have pulled)
+FALLBACK = 3            #: the run entered (contact 1) or left (contact 0) Moreau-Jean time-stepping
+WARNING = 4             #: a solver did not converge; the "contact" is the WARN_* code
 
-#: events allowed inside one step before the run stops with STALLED
-MAX_EVENTS = 10000
+# codes of WARNING events
+WARN_LCP = 1            #: the iterative LCP solver (large contact sets) stopped before converging
+WARN_LOCATE = 2         #: event location stopped before bracketing the event to round-off
+
+#: passes through one step (events, releases) before the exact method hands the step to the fallback
+MAX_EVENTS = 4096
+#: contact mode changes inside one step before the exact method hands the step to the fallback
+MODE_BUDGET = 16
+#: Zeno in several contacts (a rocking body whose bounces on two corners shrink together, which the
+#: rest speed does not end): ZENO_PASSES passes through a step that advance its time by less than
+#: ZENO_SPAN of the step also hand the step to the fallback
+ZENO_PASSES, ZENO_SPAN = 32, 1e-3
+#: Moreau-Jean steps with an unchanged contact set before the exact method takes over again
+STABLE_STEPS = 8
 #: largest contact set solved exactly by enumeration; larger ones use Gauss-Seidel
 MAX_ENUMERATED = 10
+#: slots after the contacts' modes in a run's mode array (``rest``): the fallback's state
+#: (MODE_AT: 0 exact, -1 exact with the contact set to be found again, s >= 1 in the fallback
+#: with s - 1 steps of an unchanged contact set) and that contact set (a bit mask, SET_AT)
+MODE_SLOTS = 2
+MODE_AT, SET_AT = 0, 1
 
 # ---------------------------------------------------------------------------
 # slots of the tolerance array (filled by jackbox.engine.tolerances)
@@ -43,7 +63,8 @@ T_BOXV = 3      #: bound on the speed of any point of a prescribed box
 T_WALL = 4      #: the box's inner half-width L (broad phase)
 T_RJACK = 5     #: radius of the jack's bounding circle about its centre (broad phase)
 T_RBOX = 6      #: radius of the box's outer bounding circle (broad phase, ground)
-T_SPEED = 7     #: T_SPEED + i: bound on |d gap / d qd_i| (1 or a radius); the last slots
+T_AREST = 7     #: normal accelerations below this are "still": a closed contact that does not leave faster stays held
+T_SPEED = 8     #: T_SPEED + i: bound on |d gap / d qd_i| (1 or a radius); the last slots
 
 # ---------------------------------------------------------------------------
 # the model record
@@ -104,20 +125,23 @@ SetupType = types.NamedTuple([V1, V1, V1, V1, I1, V1, I8, I1, I1, V1, V1, I8, I8
 # rows of Scratch.c, (SC, n_contact) floats: gaps at a step's ends and at a trial
 # time, normal speeds at both ends, gap biases, a right-hand side and contact
 # forces, phi_t, the LCP's right-hand side and unknowns, the dense solver's
-# copy, and the forces at both ends of a step
-GA, GB, GS, VA, VB, BIAS, RHS, LAM, VT, LR, LX, R, LAMA, LAMB = range(14)
-SC = 14
+# copy, the forces at both ends of a step, the event level of each free
+# contact in a step (gap + level = 0 at its event), a solver's unknowns
+GA, GB, GS, VA, VB, BIAS, RHS, LAM, VT, LR, LX, R, LAMA, LAMB, LEV, Y = range(16)
+SC = 16
 # rows of Scratch.n, (SN, n_dof) floats: the trial state at a step's end, the
 # state at a trial time, diag(M^-1), accelerations, the state at a step's start
 QB, QDB, QS, QDS, WINV, AF, ACC, Q0, QD0 = range(9)
 SN = 9
 # rows of Scratch.k, (SK, n_contact) integers: the persistent contacts, contacts
-# near, hit and at rest, the LCP's active set, the new persistent set, a copy
-RIDX, NEAR, HIT, CAND, IDX, NEWREST, REST0 = range(7)
-SK = 7
+# near, hit and at rest, the LCP's active set, the new persistent set, the
+# rank-revealing solver's permutation, flags (slot 0: warnings pending, a WARN_* bit mask;
+# slot 1: persistent contacts whose force pulls, a bit mask, for the next contact update)
+RIDX, NEAR, HIT, CAND, IDX, NEWREST, PERM, FLAGS = range(8)
+SK = 8
 
-Scratch = namedtuple("Scratch", ["work", "jac", "c", "n", "k", "A", "sub", "lu", "ext", "box"])
-ScratchType = types.NamedTuple([V2, V2, V2, V2, types.Array(I8, 2, "C"), V2, V2, V2, V1, V1], Scratch)
+Scratch = namedtuple("Scratch", ["work", "jac", "c", "n", "k", "rest0", "A", "sub", "lu", "ext", "box"])
+ScratchType = types.NamedTuple([V2, V2, V2, V2, types.Array(I8, 2, "C"), I1, V2, V2, V2, V1, V1], Scratch)
 
 
 @njit(cache=True)
@@ -130,6 +154,7 @@ def scratch(model):
         np.zeros((SC, C)),          # rows per contact
         np.zeros((SN, n)),          # rows per coordinate
         np.zeros((SK, C), np.int64),  # index lists
+        np.zeros(C + MODE_SLOTS, np.int64),  # a copy of the modes
         np.zeros((C, C)),           # a contact matrix
         np.zeros((C, C)),           # the LCP's sub-matrix
         np.zeros((C, C)),           # the dense solver's working copy
@@ -145,8 +170,8 @@ def scratch(model):
 #: the integrator's step: (model, t, q, qd, dt, p, q_out, qd_out, m, ws)
 STEP = types.void(ModelType, F8, V1, V1, F8, V1, V1, V1, I8, ScratchType)
 StepType = types.FunctionType(STEP)
-#: the contact update at an event: (model, t, q, qd, p, tol, rest, ws, log, n_ev, vscale) -> (n_ev, m)
-UPDATE = types.UniTuple(I8, 2)(ModelType, F8, V1, V1, V1, V1, I1, ScratchType, EventsType, I8, F8)
+#: the contact update at an event: (model, t, q, qd, p, tol, rest, ws, log, n_ev) -> (n_ev, m)
+UPDATE = types.UniTuple(I8, 2)(ModelType, F8, V1, V1, V1, V1, I1, ScratchType, EventsType, I8)
 #: the first gap crossing in a step: (model, step, ta, tb, q, qd, p, tol, rest, m, ws) -> time or -1
 CROSSING = F8(ModelType, StepType, F8, F8, V1, V1, V1, V1, I1, I8, ScratchType)
 #: the first release of a persistent contact in a step: (model, step, ta, tb, q, qd, p, tol, m, ws)

@@ -5,12 +5,18 @@ single run (:func:`jackbox.api.tolerances`) and for each swept member of a
 study inside its parallel setup (:mod:`.members`), so a member and its re-run
 alone get the same row to the last bit.
 
-Lengths scale with the box's inner half-size L: contacts closer than 1e-9 L
-take part in an impact; events are located where a gap is -0.5e-12 L (a guard
-against round-off, far below anything visible). Normal speeds below
-1e-7 sqrt(g L) count as at rest: such a contact gets a plastic impulse and
-becomes persistent, which ends a Zeno cascade of bounces (remaining flight
-time below 2e-7 sqrt(L/g) / (1 - e)). Speed bounds (the largest rate of change
+Every tolerance comes from the scene's own scales: lengths from the box's
+inner half-size L, speeds from gravity (or, weightless, from L and the step
+dt), accelerations from L and dt; never from the run's length, so the same
+scene gives the same trajectory for any ``t_end`` (up to where the shorter
+ends). Contacts closer than 1e-9 L take part in an impact; events are located
+(and persistent contacts held) where a gap is -0.5e-12 L (a guard against
+round-off, far below anything visible). Normal speeds below 1e-7 sqrt(g L)
+(weightless: 1e-10 L / dt) count as at rest: such a contact gets a plastic
+impulse and becomes persistent, which ends a Zeno cascade of bounces
+(remaining flight time below 2e-7 sqrt(L/g) e / (1 - e)). A closed contact
+whose gap would accelerate away at less than 1e-12 L / dt^2 (it leaves by
+less than the event depth in a step) is still: it stays held. Speed bounds (the largest rate of change
 of any gap per unit of each rate, and of a prescribed box's motion) decide
 which steps need the in-step dip test; the bounding radii of the jack and the
 box feed the broad phase.
@@ -21,11 +27,13 @@ import math
 import numpy as np
 from numba import njit
 
-from .records import (MODEL_AT, T_BOXV, T_EVENT, T_GAP, T_RBOX, T_RJACK, T_SPEED, T_VREST, T_WALL, ModelType,
-                      from_table)
+from .records import (MODEL_AT, T_AREST, T_BOXV, T_EVENT, T_GAP, T_RBOX, T_RJACK, T_SPEED, T_VREST, T_WALL,
+                      ModelType, from_table)
 
 #: tolerances of the exact method, relative to the scene's size and speed
 GAP_TOL, EVENT_TOL, REST_TOL = 1e-9, 1e-12, 1e-7
+#: weightless scenes: the speed scale is this many box half-widths per step
+WEIGHTLESS_SPEED = 1e-3
 #: parameter slots read here (jackbox.scene.BASE_PARAMS: m_box, J_box, L, w_box, m_jack, J_jack, g, e,
 #: e_ground), then a_jack, or each vertex's x and y of a polygon jack
 L_AT, W_BOX_AT, G_AT, JACK_AT = 2, 3, 6, 9
@@ -55,7 +63,7 @@ def set_tolerances(model, p, jack_factor, n_points, n_steps, dt, boxv, out):
     negative: sample the box's motion here (many calls of ``box_motion``).
     """
     L, w, g = p[L_AT], p[W_BOX_AT], abs(p[G_AT])
-    v_scale = math.sqrt(g * L) if g > 0 else L / max(n_steps * dt, dt)
+    v_scale = math.sqrt(g * L) if g > 0 else WEIGHTLESS_SPEED * L / dt
     if n_points == 0:
         r_jack = p[JACK_AT] * jack_factor
     else:
@@ -67,6 +75,7 @@ def set_tolerances(model, p, jack_factor, n_points, n_steps, dt, boxv, out):
     out[T_GAP] = GAP_TOL * L
     out[T_EVENT] = EVENT_TOL * L
     out[T_VREST] = REST_TOL * v_scale
+    out[T_AREST] = EVENT_TOL * L / (dt * dt)
     out[T_WALL] = L
     out[T_RJACK] = r_jack
     out[T_RBOX] = r_box

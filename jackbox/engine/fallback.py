@@ -1,0 +1,158 @@
+"""The fallback: Moreau-Jean time-stepping, for the stretches the exact method cannot resolve.
+
+When a step of the exact method sees more contact mode changes than
+MODE_BUDGET, more passes than MAX_EVENTS, or an event that makes no progress
+(a contact touching at round-off level that neither an impulse nor the
+accelerations' LCP moves on), the loop (:mod:`.loop`) undoes the step and
+integrates it, and those after it, by Moreau-Jean time-stepping: first order,
+but it cannot stall. Each of its steps is (Moreau's midpoint rule, theta = 1/2)
+
+* ``q_m = q + h/2 qd``; free rates ``u = qd + h M^-1 f(t + h/2, q_m, qd)``;
+* the contacts within reach (gap at q_m, less what the step can close, below
+  T_GAP) get one velocity-level LCP with Newton's law: ``w = J u' + e v- >= 0``,
+  ``lam >= 0``, ``w . lam = 0``, with v- the normal rates at the step's start
+  and ``u' = u + M^-1 J^T lam``; all contacts together, so simultaneous and
+  redundant contacts are no special case. Restitution acts on an approach
+  faster than the rest speed plus twice what the step's forces add to it
+  (a contact at rest gains ``-a h`` each step: bouncing that would chatter);
+  a slower one is plastic, as in the exact method. A contact receding at the
+  start may end the step approaching as fast (``w = J u' + v-``): the
+  impulses act at the midpoint, where their work is ``lam (v- + v+) / 2``, so
+  each contact's is zero or negative and no step gains energy from them;
+* ``q+ = q_m + h/2 u'``, then any gap below the event level is projected back
+  onto it (a position LCP on the contacts within T_GAP).
+
+The exact method takes over again once the set of closed contacts has been
+the same for STABLE_STEPS steps; the contact update
+(:func:`~.modes.update_contacts`) then finds the persistent set from the
+accelerations' LCP. The loop logs both hand-overs (FALLBACK events), so a
+trajectory shows where it was first order.
+"""
+
+import numpy as np
+from numba import njit
+
+from .impact import contact_matrix, solve_lcp
+from .modes import add_response
+from .records import ACC, AF, CAND, GS, HIT, LAM, LAMB, NEAR, QDS, QS, RHS, T_EVENT, T_GAP, T_VREST, VA, VB, WINV
+
+#: Newton passes of the position projection (each a position LCP)
+PROJECTION_PASSES = 4
+
+
+@njit(cache=True)
+def moreau_step(model, t, h, q, qd, p, tol, ws):
+    """One Moreau-Jean step from (t, q, qd) of length h, in place.
+
+    Returns the set of contacts closed at its end (within reach, no normal
+    rate left), as a bit mask.
+    """
+    n, C = model.n_dof, model.n_contact
+    qm, u, uf, a = ws.n[QS], ws.n[QDS], ws.n[ACC], ws.n[AF]
+    tm = t + 0.5 * h
+    for d in range(n):
+        qm[d] = q[d] + 0.5 * h * qd[d]
+    model.accel(tm, qm, qd, p, a)
+    for d in range(n):
+        uf[d] = qd[d] + h * a[d]
+        u[d] = uf[d]
+    # gaps at the midpoint; normal rates at the start, free, and after the impulses
+    g, v0, vf, v1 = ws.c[GS], ws.c[VA], ws.c[VB], ws.c[LAMB]
+    model.phi(tm, qm, p, g)
+    model.gap_rate(tm, qm, qd, p, v0)
+    model.gap_rate(tm, qm, uf, p, vf)
+    rows, member = ws.k[HIT], ws.k[CAND]
+    for k in range(C):
+        member[k] = g[k] + 0.5 * h * min(vf[k], v0[k], 0.0) < tol[T_GAP]
+    jac, A, winv = ws.jac, ws.A, ws.n[WINV]
+    model.phi_q(tm, qm, p, jac)
+    model.inverse_mass(p, winv)
+    b, lam = ws.c[RHS], ws.c[LAM]
+    na = 0
+    for _ in range(C):
+        # The LCP over the contacts within reach; a contact the others' impulses bring within
+        # reach (a jack on a floor that the ground stops) joins, and the LCP is solved again.
+        na = 0
+        for k in range(C):
+            if member[k]:
+                rows[na] = k
+                na += 1
+        if na == 0:
+            break
+        for i in range(na):
+            k = rows[i]
+            e = p[model.e_slot] if k < model.n_wall else p[model.e_ground_slot]
+            # Newton's law for an approach faster than the step's own forces give it (and the rest
+            # speed): a contact at rest gains -a h each step, and restitution on that would bounce it
+            # A contact receding at the step's start may end it approaching as fast: with the
+            # impulses acting at the midpoint they then do no work, where holding it would add energy.
+            slow = tol[T_VREST] + 2.0 * abs(vf[k] - v0[k])
+            b[i] = vf[k] + (v0[k] if v0[k] > 0.0 else e * v0[k] if v0[k] < -slow else 0.0)
+        contact_matrix(jac, winv, rows, np.int64(na), A)
+        solve_lcp(A, b, np.int64(na), lam, ws)
+        for d in range(n):
+            u[d] = uf[d]
+        add_response(jac, winv, rows, na, lam, n, u)
+        model.gap_rate(tm, qm, u, p, v1)
+        joined = False
+        for k in range(C):
+            if not member[k] and g[k] + 0.5 * h * min(v1[k], 0.0) < tol[T_GAP]:
+                member[k] = 1
+                joined = True
+        if not joined:
+            break
+    # the contacts that end the step closed (no normal rate after the impulses): unique where the
+    # impulses are not (a redundant set), so the set does not flicker between equivalent choices
+    mask = 0
+    tiny = 1e-3 * tol[T_VREST]
+    for i in range(na):
+        w = b[i]
+        for j in range(na):
+            w += A[i, j] * lam[j]
+        if w <= tiny:
+            mask |= np.int64(1) << rows[i]
+    for d in range(n):
+        qd[d] = u[d]
+        q[d] = qm[d] + 0.5 * h * u[d]
+    project_gaps(model, t + h, q, p, tol, ws)
+    return mask
+
+
+@njit(cache=True)
+def project_gaps(model, t, q, p, tol, ws):
+    """Move q the least (in the metric of M) so that no gap is below the event level.
+
+    Newton on a position LCP over the contacts below the level and those
+    within a few times the deepest penetration of it (which the correction
+    could close), kept from pass to pass so that fixing one contact does not
+    push another in.
+    """
+    n, C = model.n_dof, model.n_contact
+    level = 0.5 * tol[T_EVENT]
+    g = ws.c[GS]
+    rows, member = ws.k[HIT], ws.k[NEAR]
+    for k in range(C):
+        member[k] = 0
+    for _ in range(PROJECTION_PASSES):
+        model.phi(t, q, p, g)
+        depth = 0.0
+        for k in range(C):
+            depth = max(depth, -(g[k] + level))
+        if depth <= 0.0:
+            return
+        na = 0
+        for k in range(C):
+            if g[k] < tol[T_GAP] + 4.0 * depth:
+                member[k] = 1
+            if member[k]:
+                rows[na] = k
+                na += 1
+        jac, A, winv = ws.jac, ws.A, ws.n[WINV]
+        model.phi_q(t, q, p, jac)
+        model.inverse_mass(p, winv)
+        b, x = ws.c[RHS], ws.c[LAM]
+        for i in range(na):
+            b[i] = g[rows[i]] + level
+        contact_matrix(jac, winv, rows, np.int64(na), A)
+        solve_lcp(A, b, np.int64(na), x, ws)
+        add_response(jac, winv, rows, na, x, n, q)
