@@ -77,3 +77,16 @@ def test_throughput_quick_mode(tmp_path):
     for title in ("## Step time and start-up", "## Against the lambdified reference", "## Broad phase",
                   "## Recording", "## The C ceiling", "## Ensemble scaling"):
         assert title in md, title
+
+
+def test_contact_quick_mode(tmp_path):
+    """benchmarks/contact.py --quick: the files, and the one figure that is not a timing: nothing lost."""
+    subprocess.run([sys.executable, str(ROOT / "benchmarks" / "contact.py"), "--quick", "--out", str(tmp_path)],
+                   check=True, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    result = json.loads((tmp_path / "contact.json").read_text())
+    assert [r["lost"] for r in result["studies"]] == [0] * 5
+    assert result["sweep"]["lost"] == 0
+    assert {r["e"] for r in result["restitution"]} == {0.0, 0.025, 0.1, 0.2, 0.5, 1.0}
+    assert all(_positive(r["run_s"]) for r in result["restitution"])
+    assert _positive(result["resting"]["resting_ns_per_step"]) and result["resting"]["held_contacts"] == 4
+    assert "| study |" in (tmp_path / "contact.md").read_text()

@@ -1,0 +1,186 @@
+"""Persistent multi-contact: the studies that used to stall, low restitution, resting steps.
+
+    python benchmarks/contact.py [--members 2000] [--repeat 3] [--quick] [--out benchmarks/results]
+
+Measures, for the issue "Contact that never gives up":
+
+* **studies**: the ensembles that used to lose members (a drop thrown spinning
+  at 15 rad/s with e = 0.5 and e = 0; a weightless box spinning at 10 rad/s
+  with a square and a cross jack pressed into its wall; the drop with e = 0),
+  ``--members`` each, 2 s: members lost, members that used the fallback
+  (Moreau-Jean time-stepping, first order) and for how long, solver warnings,
+  wall time;
+* **restitution**: shaken and spring for 10 s at e in {0, 0.025, 0.1, 0.2,
+  0.5, 1}: contact events (impulses and mode changes), time in the fallback,
+  and wall time against the elastic run (median of ``--repeat``, one process,
+  interleaved);
+* **resting steps**: ns per step of the plastic drop once everything rests
+  (four persistent contacts) against the same scene in free fall (gravity,
+  no contact), both by the kernel's own clock (``meta["kernel"]["run_seconds"]``);
+* **sweep**: ``ensemble("shaken", N, sweep={"restitution": (0, 1)})`` against
+  the elastic study of the same size, wall time (compile excluded: a warm-up
+  study runs first).
+
+Writes ``contact.json`` and ``contact.md`` to ``--out``; the README quotes the
+table. ``--quick`` runs small sizes (tests/test_benchmarks_smoke.py).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+import jackbox
+from jackbox.ensemble import ensemble
+from jackbox.fileio import write_atomic
+
+SPIN = {"initial.qd": [0, 0, 15, 0.8, 0, 6]}
+#: a weightless box spinning at 10 rad/s, a light jack co-rotating at half radius (tests/test_stress.py)
+WEIGHTLESS = {"box.inner_half_width": 1.0, "box.wall_thickness": 0.1, "box.mass": 1000.0, "jack.mass": 0.01,
+              "jack.half_size": 0.1, "restitution": 0.5, "gravity": 0.0, "world.ground": False,
+              "initial.q": [0, 0, 0, -0.5, 0, 0.3], "initial.qd": [0, 0, 10, 0, -5, 10]}
+STUDIES = {
+    "spinning drop, e = 0.5": ("drop", {"restitution": 0.5, "ground_restitution": 0.5} | SPIN,
+                               {"theta_jack": 0.5, "x_jack_dot": 0.5}),
+    "spinning drop, e = 0": ("drop", {"restitution": 0.0, "ground_restitution": 0.0} | SPIN,
+                             {"theta_jack": 0.5, "x_jack_dot": 0.5}),
+    "weightless spinning box, square jack": ("drop", WEIGHTLESS | {"jack.shape": "square"}, {"theta_jack": 0.5}),
+    "weightless spinning box, cross jack": ("drop", WEIGHTLESS | {"jack.shape": "cross"}, {"theta_jack": 0.5}),
+    "drop, e = 0": ("drop", {"restitution": 0.0, "ground_restitution": 0.0}, {"theta_jack": 1e-3, "x_jack_dot": 1e-3}),
+}
+RESTITUTIONS = (0.0, 0.025, 0.1, 0.2, 0.5, 1.0)
+
+
+def studies(members: int, t_end: float) -> list[dict]:
+    rows = []
+    for name, (base, over, perturb) in STUDIES.items():
+        scene = jackbox.load_scene(base, over)
+        ensemble(scene, 2, perturb=perturb, t_end=0.01)        # compile outside the clock
+        t0 = time.perf_counter()
+        ens = ensemble(scene, members, perturb=perturb, t_end=t_end)
+        wall = time.perf_counter() - t0
+        used = ens.fallback > 0
+        rows.append({"study": name, "members": members, "t_end": t_end, "lost": int((~ens.completed).sum()),
+                     "fallback_members": int(used.sum()), "fallback_seconds": float(ens.fallback.sum()),
+                     "fallback_max": float(ens.fallback.max()), "warnings": int(ens.warnings.sum()),
+                     "impulses_median": float(np.median(ens.impacts)), "wall_s": wall})
+        print(f"{name}: {rows[-1]['lost']} of {members} lost, fallback in {rows[-1]['fallback_members']} "
+              f"({rows[-1]['fallback_seconds']:.3g} s in all), {wall:.1f} s", flush=True)
+    return rows
+
+
+def restitution(repeat: int, t_end: float) -> list[dict]:
+    rows = []
+    for name in ("shaken", "spring"):
+        runs = {e: [] for e in RESTITUTIONS}
+        out = {}
+        for _ in range(repeat):
+            for e in RESTITUTIONS:            # interleaved, so a busy spell hits every e alike
+                traj = jackbox.simulate(name, t_end=t_end, params={"e": e, "e_ground": e})
+                runs[e].append(traj.meta["kernel"]["run_seconds"])
+                out[e] = traj
+        elastic = statistics.median(runs[1.0])
+        for e in RESTITUTIONS:
+            traj = out[e]
+            rows.append({"scene": name, "e": e, "t_end": t_end, "impulses": len(traj.impact_t),
+                         "mode_changes": len(traj.contact_t), "events": len(traj.impact_t) + len(traj.contact_t),
+                         "fallback_seconds": traj.fallback_seconds, "run_s": statistics.median(runs[e]),
+                         "vs_elastic": statistics.median(runs[e]) / elastic})
+            r = rows[-1]
+            print(f"{name} e = {e:g}: {r['events']} events, fallback {r['fallback_seconds']:.3g} s, "
+                  f"{r['vs_elastic']:.2f}x the elastic run", flush=True)
+    return rows
+
+
+def resting(repeat: int) -> dict:
+    """ns per step at rest (the plastic drop, settled) and in free fall (no contact)."""
+    settled = jackbox.simulate("drop", t_end=8.0, params={"e": 0.0, "e_ground": 0.0})
+    q, qd = settled.q[-1].tolist(), settled.qd[-1].tolist()
+    at_rest = jackbox.load_scene("drop", {"restitution": 0.0, "ground_restitution": 0.0,
+                                          "initial.q": q, "initial.qd": qd})
+    falling = jackbox.load_scene("drop", {"initial.q": [0, 1000.0, 0, 0, 1000.0, 0], "initial.qd": [0] * 6})
+    ns = {"resting": [], "free": []}
+    for _ in range(repeat):
+        for key, scene in (("resting", at_rest), ("free", falling)):
+            traj = jackbox.simulate(scene, t_end=5.0, record_every=5000)
+            ns[key].append(traj.meta["kernel"]["run_seconds"] / traj.meta["n_steps"] * 1e9)
+    held = len({k for k in settled.contact_constraint if np.sum(settled.contact_constraint == k) % 2 == 1})
+    out = {"held_contacts": held, "resting_ns_per_step": statistics.median(ns["resting"]),
+           "free_ns_per_step": statistics.median(ns["free"])}
+    out["ratio"] = out["resting_ns_per_step"] / out["free_ns_per_step"]
+    print(f"resting step ({held} held): {out['resting_ns_per_step']:.0f} ns, free {out['free_ns_per_step']:.0f} ns, "
+          f"{out['ratio']:.1f}x", flush=True)
+    return out
+
+
+def sweep(members: int, t_end: float) -> dict:
+    ensemble("shaken", 2, sweep={"restitution": (0.0, 1.0)}, t_end=0.01)
+    t0 = time.perf_counter()
+    ens = ensemble("shaken", members, t_end=t_end, params={"e": 1.0, "e_ground": 1.0})
+    elastic = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    swept = ensemble("shaken", members, sweep={"restitution": (0.0, 1.0)}, t_end=t_end)
+    wall = time.perf_counter() - t0
+    out = {"members": members, "t_end": t_end, "elastic_s": elastic, "sweep_s": wall, "ratio": wall / elastic,
+           "lost": int((~swept.completed).sum()) + int((~ens.completed).sum()),
+           "fallback_members": int((swept.fallback > 0).sum())}
+    print(f"shaken restitution sweep, {members} members: {wall:.1f} s against {elastic:.1f} s elastic "
+          f"({out['ratio']:.2f}x), {out['lost']} lost", flush=True)
+    return out
+
+
+def markdown(res: dict) -> str:
+    lines = ["# Persistent multi-contact (benchmarks/contact.py)", "",
+             f"Machine: {res['machine']}. Command: `{res['command']}`.", "",
+             "| study | members | lost | in the fallback | fallback time (all members) | warnings | wall |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
+    for r in res["studies"]:
+        lines.append(f"| {r['study']} | {r['members']} | {r['lost']} | {r['fallback_members']} | "
+                     f"{r['fallback_seconds']:.3g} s | {r['warnings']} | {r['wall_s']:.1f} s |")
+    lines += ["", "| scene, 10 s | e | impulses | mode changes | fallback | run time vs e = 1 |",
+              "| --- | --- | --- | --- | --- | --- |"]
+    for r in res["restitution"]:
+        lines.append(f"| {r['scene']} | {r['e']:g} | {r['impulses']} | {r['mode_changes']} | "
+                     f"{r['fallback_seconds']:.3g} s | {r['vs_elastic']:.2f}x |")
+    rs = res["resting"]
+    lines += ["", f"Resting step (plastic drop, settled, {rs['held_contacts']} persistent contacts): "
+              f"{rs['resting_ns_per_step']:.0f} ns against {rs['free_ns_per_step']:.0f} ns in free fall "
+              f"({rs['ratio']:.1f}x)."]
+    sw = res["sweep"]
+    lines += ["", f"Restitution sweep (0..1) of shaken, {sw['members']} members, {sw['t_end']:g} s: "
+              f"{sw['sweep_s']:.1f} s against {sw['elastic_s']:.1f} s for the elastic study ({sw['ratio']:.2f}x); "
+              f"{sw['lost']} members lost, {sw['fallback_members']} used the fallback.", ""]
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--members", type=int, default=2000, help="members per study (default 2000)")
+    ap.add_argument("--repeat", type=int, default=3, help="runs per timing, median (default 3)")
+    ap.add_argument("--quick", action="store_true", help="small sizes: a smoke test")
+    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results", help="folder for the results")
+    args = ap.parse_args(argv)
+    members, t_end, horizon, repeat = ((20, 0.5, 1.0, 1) if args.quick
+                                       else (args.members, 2.0, 10.0, args.repeat))
+    res = {"machine": f"{platform.machine()}, {os.cpu_count()} cores",
+           "command": " ".join(["python", "benchmarks/contact.py", *(argv if argv is not None else sys.argv[1:])]),
+           "studies": studies(members, t_end), "restitution": restitution(repeat, horizon),
+           "resting": resting(repeat), "sweep": sweep(members, horizon)}
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_atomic(args.out / "contact.json", json.dumps(res, indent=1))
+    write_atomic(args.out / "contact.md", markdown(res))
+    print(f"wrote {args.out / 'contact.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
