@@ -92,6 +92,22 @@ def naive_steps(model, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every, 
 
 
 @njit(cache=True, inline="always")
+def let_go(model, stages, t, q, qd, p, tol, rest, m, ws, log, n_ev, changes):
+    """The contact update where a persistent contact's force pulls; the gaps at t into ``ws.c[GA]``.
+
+    Returns ``(n_ev, m, changes, watch)``: a mode change counted, or, when the
+    update held every contact (the accelerations' LCP finds them still), no
+    more release watching in this step.
+    """
+    m0 = m
+    n_ev, m = stages.update(model, t, q, qd, p, tol, rest, ws, log, n_ev)
+    model.phi(t, q, p, ws.c[GA])
+    if m == m0:
+        return n_ev, m, changes, False
+    return n_ev, m, changes + 1, True
+
+
+@njit(cache=True, inline="always")
 def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial):
     """Take the state from ta to tb through every event in between.
 
@@ -125,13 +141,8 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
         if m > 0 and watch_release and not releasing:
             tr = stages.release(model, stages.step, ta, target, q, qd, p, tol, m, ws)
             if tr == ta:       # a persistent contact already pulls: the contact update decides
-                m0 = m
-                n_ev, m = stages.update(model, ta, q, qd, p, tol, rest, ws, log, n_ev)
-                if m == m0:
-                    watch_release = False
-                else:
-                    changes += 1
-                model.phi(ta, q, p, ga)
+                n_ev, m, changes, watch_release = let_go(model, stages, ta, q, qd, p, tol, rest, m, ws, log, n_ev,
+                                                         changes)
                 trial = False
                 continue
             if tr > ta:        # step to where it lets go (gaps are checked on the way)
@@ -181,13 +192,7 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
             for k in range(C):
                 ga[k] = gb[k]
         if releasing:          # arrived where a persistent contact lets go
-            m0 = m
-            n_ev, m = stages.update(model, ta, q, qd, p, tol, rest, ws, log, n_ev)
-            if m == m0:
-                watch_release = False
-            else:
-                changes += 1
-            model.phi(ta, q, p, ga)
+            n_ev, m, changes, watch_release = let_go(model, stages, ta, q, qd, p, tol, rest, m, ws, log, n_ev, changes)
             target = tb
             releasing = False
             continue
