@@ -370,7 +370,8 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
                     n_ev = enter_fallback(t, rest, C, log, n_before)
                     n_ev, m = fallback_step(model, stages, t, dt, q, qd, p, tol, rest, ws, log, n_ev)
                     ga_ok = False
-        n_ev = log_warnings(t_next, ws, log, n_ev)
+        if ws.k[FLAGS, 0]:        # (a call per step otherwise: the flags are almost always clear)
+            n_ev = log_warnings(t_next, ws, log, n_ev)
         if n_ev > capacity:   # the log overflowed: undo the step, the caller grows it
             for d in range(n):
                 q[d] = q0[d]
