@@ -729,7 +729,11 @@ def test_very_fast_spinning_jack_with_a_coarse_step_keeps_the_invariants():
 
 
 def test_elastic_drop_keeps_its_energy_for_ten_seconds():
-    """e = 1 on walls and ground, gravity: energy kept to round-off through 100+ impacts.
+    """e = 1 on walls and ground, gravity: energy kept to round-off through dozens of impacts.
+
+    (How many depends on round-off: the motion is chaotic, and two builds of
+    the engine that differ at 1e-16 in one impact time part after 4 s; 76 and
+    111 have been seen.)
 
     Flights are parabolas (RK4 exact), impulses elastic: round-off at every
     step, and at the end the random walk of K impulses, ROUND_OFF sqrt(1 + K)
@@ -738,7 +742,7 @@ def test_elastic_drop_keeps_its_energy_for_ten_seconds():
     """
     scene = jackbox.load_scene("drop", {"restitution": 1.0, "ground_restitution": 1.0})
     traj = jackbox.simulate(scene, t_end=10.0, dt=1e-3)
-    assert len(traj.impact_t) > 100
+    assert len(traj.impact_t) > 50
     check_energy(traj, scene, elastic=True)
     P = scene.params()
     K = len(traj.impact_t)

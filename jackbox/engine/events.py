@@ -17,13 +17,15 @@ from numba import njit
 
 from .gaps import hermite, hermite_extrema, step_reach
 from .modes import accel, contact_accel
-from .records import (AF, FLAGS, GA, GB, GS, LAM, LAMA, LAMB, LEV, LR, QB, QDB, QDS, QS, RIDX, T_AREST, T_EVENT, T_VREST, VA,
+from .records import (AF, FLAGS, GA, GB, GS, LAM, LAMA, LAMB, LEV, LR, LS, QB, QDB, QDS, QS, RIDX, T_AREST, T_EVENT, T_VREST, VA,
                       VB, WARN_LOCATE)
 
 # kinds of event function (passed as np.int64: a bare literal would make Numba
 # compile one specialisation per value)
 GAP_EVENT = 0           #: a gap plus its level (``ws.c[LEV]``) reaches zero
 FORCE_EVENT = 1         #: a persistent contact's force reaches zero
+#: a gap this fraction of T_EVENT above its level is at it (gaps of order L carry round-off of about 1e-16 L)
+GAP_ROUNDOFF = 1e-3
 
 
 @njit(cache=True)
@@ -45,20 +47,36 @@ def event_value(model, step, kind, pos, ta, q, qd, s, p, tol, m, ws):
 
 
 @njit(cache=True, inline="always")
-def locate(model, step, kind, pos, ta, q, qd, tl, fl, tr, fr, p, tol, m, ws):
+def locate(model, step, kind, pos, ta, q, qd, tl, fl, tr, fr, guess, p, tol, m, ws):
     """Illinois iteration for the root of the event function in [tl, tr] (fl >= 0 > fr).
 
-    Returns (tl, tr) with tr - tl near machine precision, f(tl) >= 0 > f(tr);
-    if 200 iterations do not get there, sets WARN_LOCATE in ``ws.k[FLAGS, 0]``.
+    guess: a first probe (the root of the gap's cubic through the step), or
+    outside (tl, tr) for none. No probe comes closer than half the tolerance
+    to an end of the bracket: once one end's value is at round-off (the
+    secant then lands on that end), the next probe just inside it closes the
+    bracket, where a bisection would crawl there in some fifteen halvings.
+    Returns (tl, tr) with f(tl) >= 0 > f(tr) and tr - tl near machine
+    precision, or, for a gap, as soon as the gap at tl is within
+    GAP_ROUNDOFF of T_EVENT of its level: the state there is at the event to
+    round-off, and below that a gap's sign is noise (a slow approach would
+    otherwise take some twenty probes of noise to narrow the bracket). If
+    200 iterations do not get there, sets WARN_LOCATE in ``ws.k[FLAGS, 0]``.
     """
     side = 0
     ttol = 4.0 * 2.220446049250313e-16 * max(abs(tr), tr - ta)
-    for _ in range(200):
-        if tr - tl <= ttol:
+    ftol = GAP_ROUNDOFF * tol[T_EVENT] if kind == GAP_EVENT else -1.0
+    done = False
+    for it in range(200):
+        if tr - tl <= ttol or fl <= ftol:
+            done = True
             break
-        s = (tl * fr - tr * fl) / (fr - fl)
-        if not (tl < s < tr):
-            s = 0.5 * (tl + tr)
+        if it == 0 and tl < guess < tr:
+            s = guess
+        else:
+            s = (tl * fr - tr * fl) / (fr - fl)
+            if not (tl <= s <= tr):       # (NaN: fl = fr)
+                s = 0.5 * (tl + tr)
+        s = min(max(s, tl + 0.5 * ttol), tr - 0.5 * ttol)
         f = event_value(model, step, kind, pos, ta, q, qd, s, p, tol, m, ws)
         if f >= 0.0:
             tl, fl = s, f
@@ -70,9 +88,31 @@ def locate(model, step, kind, pos, ta, q, qd, tl, fl, tr, fr, p, tol, m, ws):
             if side == 1:
                 fl *= 0.5
             side = 1
-    if tr - tl > ttol:
+    if not done and tr - tl > ttol:
         ws.k[FLAGS, 0] |= WARN_LOCATE
     return tl, tr
+
+
+@njit(cache=True)
+def cubic_root(fa, fb, da, db, sl, sr):
+    """The root in (sl, sr) of the cubic with values fa, fb and slopes da, db at 0 and 1, or -1.
+
+    Where the cubic is positive at sl and negative at sr; by bisection, on the
+    polynomial alone (no step of the model). The cubic is RK4's own gap to
+    O(h^4), so its root is a first probe close to the event.
+    """
+    hl, hr = hermite(fa, fb, da, db, sl), hermite(fa, fb, da, db, sr)
+    if not (hl >= 0.0 > hr):
+        return -1.0
+    for _ in range(60):
+        mid = 0.5 * (sl + sr)
+        if not sl < mid < sr:
+            break
+        if hermite(fa, fb, da, db, mid) >= 0.0:
+            sl = mid
+        else:
+            sr = mid
+    return 0.5 * (sl + sr)
 
 
 @njit(cache=True, inline="always")
@@ -165,7 +205,8 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
         tl, fl = left_bracket(model, step, k, ta, h, fa, fb, da, db, sr, q, qd, p, tol, m, ws)
         if fl <= 0.0:
             return ta  # touching now, with no resolvable flight before the crossing
-        tl, tr = locate(model, step, gap_kind, k, ta, q, qd, tl, fl, tr, fr, p, tol, m, ws)
+        guess = ta + h * cubic_root(fa, fb, da, db, (tl - ta) / h, sr)
+        tl, tr = locate(model, step, gap_kind, k, ta, q, qd, tl, fl, tr, fr, guess, p, tol, m, ws)
         if best_k < 0 or tl < best_l:
             best_l, best_k = tl, k
             t_hi = tr
@@ -189,7 +230,8 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
                               q, qd, p, tol, m, ws)
         if fl <= 0.0:
             return ta
-        tl, tr = locate(model, step, gap_kind, np.int64(worst), ta, q, qd, tl, fl, best_l, fr, p, tol, m, ws)
+        guess = ta + h * cubic_root(fa, fb, h * va[worst], h * vb[worst], (tl - ta) / h, sr)
+        tl, tr = locate(model, step, gap_kind, np.int64(worst), ta, q, qd, tl, fl, best_l, fr, guess, p, tol, m, ws)
         best_l, best_k = tl, worst
     return best_l
 
@@ -199,36 +241,62 @@ def first_release(model, step, ta, tb, q, qd, p, tol, m, ws):
     """When the earliest persistent contact's force turns negative in (ta, tb], or -1.
 
     A force pulls when it would accelerate its gap away faster than T_AREST
-    (below that the contact is still: round-off on a redundant set). Returns
-    the time just after the sign change (the force is negative there), or ta
-    when a force already pulls at ta. The contacts whose force pulls at tb
-    go to the contact update as a bit mask in ``ws.k[FLAGS, 1]``: it lets them
-    go unless the accelerations' LCP gives them a force (at the located zero
-    of a force its acceleration is zero too, and would count as still).
+    (below that the contact is still: round-off on a redundant set). The
+    step's own forces, at the integrator's four stages (``ws.c[LS + s]``, left
+    by the step from ta to tb that the caller has just taken), screen it: where
+    none pulls, nothing is computed. Otherwise the forces at ta (the first
+    stage's) and then at tb decide, or, where neither pulls, those at the
+    step's middle (a pull that lasts less than the step: a floor that shakes
+    faster than dt resolves). Returns the time just after the sign change (the
+    force is negative there), or ta when a force already pulls at ta. The
+    contacts whose force pulls there go to the contact update as a bit mask
+    in ``ws.k[FLAGS, 1]``: it lets them go unless the accelerations' LCP
+    gives them a force (at the located zero of a force its acceleration is
+    zero too, and would count as still).
     """
     lam_a, lam_b, floor = ws.c[LAMA], ws.c[LAMB], ws.c[LR]
-    contact_accel(model, tb, ws.n[QB], ws.n[QDB], p, m, ws.n[AF], ws)
-    pulls = 0
-    ridx = ws.k[RIDX]
     for i in range(m):
-        lam_b[i] = ws.c[LAM, i]
         floor[i] = -tol[T_AREST] / ws.A[i, i]      # the force that pulls the gap away at T_AREST
-        if not lam_b[i] >= floor[i]:     # (NaN too, as the force's minimum would)
+    screened = False
+    for s in range(4):
+        for i in range(m):
+            if not ws.c[LS + s, i] >= floor[i]:     # (NaN too, as the force's minimum would)
+                screened = True
+    if not screened:
+        return -1.0
+    ridx = ws.k[RIDX]
+    pulls = 0
+    for i in range(m):
+        lam_a[i] = ws.c[LS, i]           # stage 1: the forces at (ta, q, qd)
+        if not lam_a[i] >= floor[i]:
             pulls |= np.int64(1) << ridx[i]
+    if pulls:                            # pulling already: the contact update decides, now
+        ws.k[FLAGS, 1] = pulls
+        return ta
+    t_hi = tb
+    for probe in range(2):
+        if probe == 0:
+            contact_accel(model, tb, ws.n[QB], ws.n[QDB], p, m, ws.n[AF], ws)
+        else:                            # no pull at tb: the middle of the step
+            t_hi = 0.5 * (ta + tb)
+            step(model, ta, q, qd, t_hi - ta, p, ws.n[QS], ws.n[QDS], m, ws)
+            contact_accel(model, t_hi, ws.n[QS], ws.n[QDS], p, m, ws.n[AF], ws)
+        for i in range(m):
+            lam_b[i] = ws.c[LAM, i]
+            floor[i] = -tol[T_AREST] / ws.A[i, i]
+            if not lam_b[i] >= floor[i]:
+                pulls |= np.int64(1) << ridx[i]
+        if pulls:
+            break
     if not pulls:
         return -1.0
     ws.k[FLAGS, 1] = pulls
-    contact_accel(model, ta, q, qd, p, m, ws.n[AF], ws)
-    for i in range(m):
-        lam_a[i] = ws.c[LAM, i]
     best = -1.0
     for i in range(m):
         if lam_b[i] >= floor[i]:
             continue
-        if lam_a[i] < floor[i]:
-            return ta
-        tl, tr = locate(model, step, np.int64(FORCE_EVENT), np.int64(i), ta, q, qd, ta, max(lam_a[i], 0.0), tb,
-                        lam_b[i], p, tol, m, ws)
+        tl, tr = locate(model, step, np.int64(FORCE_EVENT), np.int64(i), ta, q, qd, ta, max(lam_a[i], 0.0), t_hi,
+                        lam_b[i], -1.0, p, tol, m, ws)
         if best < 0.0 or tr < best:
             best = tr
     return best

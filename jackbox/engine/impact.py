@@ -16,13 +16,15 @@ accelerations, decides which resting contacts carry a force
 (:mod:`jackbox.engine.modes`).
 """
 
+import math
+
 import numpy as np
 from numba import njit
 
 from .records import FLAGS, HIT, IDX, LAM, LR, LX, MAX_ENUMERATED, PERM, R, RHS, VT, WARN_LCP, WINV, Y
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def contact_matrix(jac, winv, rows, m, A):
     """``A = J_R M^-1 J_R^T`` for the m contacts listed in rows (M diagonal: winv = diag M^-1)."""
     n = jac.shape[1]
@@ -75,61 +77,84 @@ def solve_dense(A, b, m, x, ws):
     return True
 
 
-#: a pivot below this fraction of the largest diagonal marks a dependent row (rank-revealing solve)
+#: a row of a contact matrix whose diagonal, once the rows before it are eliminated, keeps less than this
+#: fraction of itself depends on them (rank-revealing solve)
 RANK_TOL = 1e-11
 #: Gauss-Seidel sweeps for a contact set too large to enumerate, and its convergence test
 #: (complementarity violated by less than this fraction of the right-hand side's scale)
 PGS_SWEEPS, PGS_TOL = 20000, 1e-12
 
 
+@njit(cache=True, inline="always")
+def factor_psd(A, m, ws):
+    """Factor ``A[:m, :m]``, symmetric positive semi-definite, revealing its rank; returns the rank.
+
+    Cholesky, ``A = L L^T`` into ``ws.lu``, row after row in the contacts'
+    order, skipping a row that depends on those before it: what is left of
+    its diagonal once they are eliminated is below RANK_TOL of the diagonal
+    (a redundant contact set: a square jack flush in a corner touches four
+    times with three degrees of freedom). Its column of L is zero and
+    ``ws.k[PERM]`` marks it (0; 1 for an independent row). :func:`solve_factored`
+    then gives its unknown 0, so the others carry the whole answer: for a
+    consistent system (held contacts of one rigid motion) that solves it
+    exactly, where a diagonal shift would leave a residual. In a fixed order,
+    not pivoted, so the forces it gives move continuously while the same rows
+    are held (a pivot order that flips with the state would move a redundant
+    set's load from one contact to another in a jump, which event location
+    would take for a release). One factorization serves several right-hand
+    sides (a projection's gaps and rates).
+    """
+    L, basic = ws.lu, ws.k[PERM]
+    rank = 0
+    for j in range(m):
+        d = A[j, j]
+        for k in range(j):
+            d -= L[j, k] * L[j, k]
+        if d > RANK_TOL * A[j, j]:
+            basic[j] = 1
+            rank += 1
+            ljj = math.sqrt(d)
+            L[j, j] = ljj
+            for i in range(j + 1, m):
+                s = A[i, j]
+                for k in range(j):
+                    s -= L[i, k] * L[j, k]
+                L[i, j] = s / ljj
+        else:
+            basic[j] = 0
+            L[j, j] = 1.0
+            for i in range(j + 1, m):
+                L[i, j] = 0.0
+    return rank
+
+
+@njit(cache=True, inline="always")
+def solve_factored(b, m, rank, x, ws):
+    """``x`` for ``A x = b`` with A factored by :func:`factor_psd`; the dependent rows' unknowns are 0."""
+    L, basic, y = ws.lu, ws.k[PERM], ws.c[Y]
+    for j in range(m):
+        if basic[j]:
+            s = b[j]
+            for k in range(j):
+                s -= L[j, k] * y[k]
+            y[j] = s / L[j, j]
+        else:
+            y[j] = 0.0
+    for j in range(m - 1, -1, -1):
+        if basic[j]:
+            s = y[j]
+            for k in range(j + 1, m):
+                s -= L[k, j] * x[k]
+            x[j] = s / L[j, j]
+        else:
+            x[j] = 0.0
+
+
 @njit(cache=True)
 def solve_psd(A, b, m, x, ws):
-    """Solve ``A[:m, :m] x = b[:m]`` for a symmetric positive semi-definite A, revealing its rank.
-
-    Symmetric elimination with diagonal pivoting: the largest remaining
-    diagonal is eliminated first; once every remaining one is below RANK_TOL
-    of the largest, those rows depend on the others (a redundant contact set:
-    a square jack flush in a corner touches four times with three degrees of
-    freedom) and their unknowns are 0, so the others carry the whole answer.
-    For a consistent system (held contacts of one rigid motion) that solves it
-    exactly, where a diagonal shift would leave a residual. Returns the rank.
-    """
-    a, r, y, perm = ws.lu, ws.c[R], ws.c[Y], ws.k[PERM]
-    scale = 0.0
-    for i in range(m):
-        r[i] = b[i]
-        perm[i] = i
-        for k in range(m):
-            a[i, k] = A[i, k]
-        scale = max(scale, A[i, i])
-    rank = 0
-    for col in range(m):
-        piv = col
-        for j in range(col + 1, m):
-            if a[j, j] > a[piv, piv]:
-                piv = j
-        if not a[piv, piv] > RANK_TOL * scale:
-            break
-        if piv != col:      # swap row and column col with piv
-            for k in range(m):
-                a[col, k], a[piv, k] = a[piv, k], a[col, k]
-            for k in range(m):
-                a[k, col], a[k, piv] = a[k, piv], a[k, col]
-            r[col], r[piv] = r[piv], r[col]
-            perm[col], perm[piv] = perm[piv], perm[col]
-        for row in range(col + 1, m):
-            f = a[row, col] / a[col, col]
-            for k in range(col, m):
-                a[row, k] -= f * a[col, k]
-            r[row] -= f * r[col]
-        rank += 1
-    for row in range(rank - 1, -1, -1):
-        s = r[row]
-        for k in range(row + 1, rank):
-            s -= a[row, k] * y[k]
-        y[row] = s / a[row, row]
-    for i in range(m):
-        x[perm[i]] = y[i] if i < rank else 0.0
+    """Solve ``A[:m, :m] x = b[:m]`` for a symmetric positive semi-definite A (:func:`factor_psd`); returns the rank."""
+    rank = factor_psd(A, m, ws)
+    solve_factored(b, m, rank, x, ws)
     return rank
 
 

@@ -11,6 +11,7 @@ give the same numbers bit for bit (tests/test_engine.py checks it).
 from numba import njit
 
 from .modes import accel
+from .records import LAM, LS
 
 #: the classical RK4 tableau (diagonal): stage s is evaluated at t + NODES[s] dt, at the start
 #: state moved NODES[s] dt along stage s-1's slope
@@ -27,20 +28,27 @@ def rk4(model, t, q, qd, dt, p, q_out, qd_out, m, ws):
     """One RK4 step from (t, q, qd) of length dt into q_out, qd_out (they may be q and qd).
 
     With m > 0 persistent contacts (``ws.k[RIDX]``) the accelerations hold them
-    closed (:func:`jackbox.engine.modes.contact_accel`).
+    closed (:func:`jackbox.engine.modes.contact_accel`); their forces at the
+    four stages are left in ``ws.c[LS + stage, :m]`` (the release test reads
+    them: :func:`jackbox.engine.events.first_release`).
     """
     n = model.n_dof
     w = ws.work
     qs = w[0]              # a stage's coordinates
     v = w[1:5]             # the stages' rates: the slopes of q
     a = w[5:9]             # the stages' accelerations: the slopes of qd
+    lam = ws.c[LAM]
     accel(model, t, q, qd, p, m, a[0], ws)
+    for i in range(m):
+        ws.c[LS, i] = lam[i]
     for s in range(1, 4):
         h = NODES[s] * dt
         for i in range(n):
             qs[i] = q[i] + h * (qd[i] if s == 1 else v[s - 1, i])
             v[s, i] = qd[i] + h * a[s - 1, i]
         accel(model, t + h, qs, v[s], p, m, a[s], ws)
+        for i in range(m):
+            ws.c[LS + s, i] = lam[i]
     h = dt / SCALE
     for i in range(n):
         q_out[i] = q[i] + h * (WEIGHTS[0] * qd[i] + WEIGHTS[1] * v[1, i] + WEIGHTS[2] * v[2, i] + WEIGHTS[3] * v[3, i])

@@ -186,7 +186,7 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
             qd[d] = qdb[d]
         ta = target
         if m > 0:
-            project_rest(model, ta, q, qd, p, m, level, ws)
+            project_rest(model, ta, q, qd, p, m, level, np.int64(1), ws)
             model.phi(ta, q, p, ga)
         else:
             for k in range(C):
@@ -228,7 +228,8 @@ def fallback_step(model, stages, t, h, q, qd, p, tol, rest, ws, log, n_ev):
     if mask:
         for k in range(C):
             rest[k] = mask >> k & 1
-        project_rest(model, t_next, q, qd, p, rest_index(rest, C, ws.k[RIDX]), 0.5 * tol[T_EVENT], ws)
+        project_rest(model, t_next, q, qd, p, rest_index(rest, C, ws.k[RIDX]), 0.5 * tol[T_EVENT], np.int64(2),
+                     ws)
         for k in range(C):
             rest[k] = 0
     return stages.update(model, t_next, q, qd, p, tol, rest, ws, log, n_ev)

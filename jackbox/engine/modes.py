@@ -23,7 +23,7 @@ off the held contacts after each step.
 import numpy as np
 from numba import njit
 
-from .impact import contact_matrix, solve_lcp, solve_psd
+from .impact import contact_matrix, factor_psd, solve_factored, solve_lcp
 from .records import (ACC, BIAS, CAND, FLAGS, GS, HIT, IMPULSE, LAM, NEAR, NEWREST, RELEASE, REST, RHS,
                       RIDX, T_AREST, T_EVENT, T_GAP, T_VREST, VB, WINV)
 
@@ -90,36 +90,41 @@ def contact_accel(model, t, q, qd, p, m, a, ws):
         for d in range(n):
             s += jac[k, d] * a[d]
         rhs[i] = -s
-    solve_psd(A, rhs, m, lam, ws)
+    solve_factored(rhs, m, factor_psd(A, m, ws), lam, ws)
     add_response(jac, winv, ridx, m, lam, n, a)
 
 
 @njit(cache=True)
-def project_rest(model, t, q, qd, p, m, level, ws):
+def project_rest(model, t, q, qd, p, m, level, passes, ws):
     """Put the persistent contacts back on gap = -level and rate = 0 (removes RK4's drift).
 
     The smallest correction in the metric of M onto every held row (a
-    redundant set included: :func:`~.impact.solve_psd`).
+    redundant set included: :func:`~.impact.factor_psd`), by ``passes``
+    Newton passes on the gaps: after a step of the held dynamics the drift is
+    O(dt^5) and one pass leaves its square; after an event, two. The rates
+    are projected with the last pass's factorization: the rows it was taken
+    at differ from the final ones by the last correction, whose effect on the
+    rates is of its square too.
     """
     n = model.n_dof
     ridx, jac, A = ws.k[RIDX], ws.jac, ws.A
     winv = ws.n[WINV]
     model.inverse_mass(p, winv)
     g, rhs, x = ws.c[GS], ws.c[RHS], ws.c[LAM]
-    for _ in range(2):   # Newton on the gaps; the drift is O(dt^5), one pass is plenty
+    rank = 0
+    for _ in range(passes):
         model.phi(t, q, p, g)
         model.phi_q(t, q, p, jac)
         contact_matrix(jac, winv, ridx, m, A)
+        rank = factor_psd(A, m, ws)
         for i in range(m):
             rhs[i] = -(g[ridx[i]] + level)
-        solve_psd(A, rhs, m, x, ws)
+        solve_factored(rhs, m, rank, x, ws)
         add_response(jac, winv, ridx, m, x, n, q)
-    model.phi_q(t, q, p, jac)
-    contact_matrix(jac, winv, ridx, m, A)
     model.gap_rate(t, q, qd, p, g)
     for i in range(m):
         rhs[i] = -g[ridx[i]]
-    solve_psd(A, rhs, m, x, ws)
+    solve_factored(rhs, m, rank, x, ws)
     add_response(jac, winv, ridx, m, x, n, qd)
 
 
@@ -245,5 +250,5 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
         rest[k] = newrest[k]
     m = rest_index(rest, C, ws.k[RIDX])
     if m > 0:
-        project_rest(model, t, q, qd, p, m, 0.5 * tol[T_EVENT], ws)
+        project_rest(model, t, q, qd, p, m, 0.5 * tol[T_EVENT], np.int64(2), ws)
     return n_ev, m

@@ -126,9 +126,10 @@ SetupType = types.NamedTuple([V1, V1, V1, V1, I1, V1, I8, I1, I1, V1, V1, I8, I8
 # time, normal speeds at both ends, gap biases, a right-hand side and contact
 # forces, phi_t, the LCP's right-hand side and unknowns, the dense solver's
 # copy, the forces at both ends of a step, the event level of each free
-# contact in a step (gap + level = 0 at its event), a solver's unknowns
-GA, GB, GS, VA, VB, BIAS, RHS, LAM, VT, LR, LX, R, LAMA, LAMB, LEV, Y = range(16)
-SC = 16
+# contact in a step (gap + level = 0 at its event), a solver's unknowns, the
+# persistent contacts' forces at the integrator's four stages (LS + stage)
+GA, GB, GS, VA, VB, BIAS, RHS, LAM, VT, LR, LX, R, LAMA, LAMB, LEV, Y, LS = range(17)
+SC = LS + 4
 # rows of Scratch.n, (SN, n_dof) floats: the trial state at a step's end, the
 # state at a trial time, diag(M^-1), accelerations, the state at a step's start
 QB, QDB, QS, QDS, WINV, AF, ACC, Q0, QD0 = range(9)

@@ -1,0 +1,89 @@
+"""The engine's small dense solvers against numpy: the rank-revealing solve of held contacts.
+
+A held contact set can be redundant (a square jack flush in a corner touches
+four times with three degrees of freedom): its contact matrix is singular,
+and the forces are not unique. The solve must hold every row exactly, give
+the dependent rows nothing, and move its answer continuously as the rows turn
+(a jump would look like a force changing sign, and be taken for a release).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from jackbox.engine import records as R
+from jackbox.engine.impact import solve_psd
+
+
+def workspace(C=8, n=6):
+    return R.Scratch(np.zeros((9, n)), np.zeros((C, n)), np.zeros((R.SC, C)), np.zeros((R.SN, n)),
+                     np.zeros((R.SK, C), np.int64), np.zeros(C + R.MODE_SLOTS, np.int64), np.zeros((C, C)),
+                     np.zeros((C, C)), np.zeros((C, C)), np.zeros(2), np.zeros(6))
+
+
+def solve(A, b):
+    m = len(b)
+    C = max(m, 1)
+    Af, bf, x = np.zeros((C, C)), np.zeros(C), np.zeros(C)
+    Af[:m, :m], bf[:m] = A, b
+    rank = solve_psd(Af, bf, m, x, workspace(C))
+    return x[:m], rank
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_full_rank_matches_numpy(seed):
+    rng = np.random.default_rng(seed)
+    m = rng.integers(1, 7)
+    J = rng.normal(size=(m, 6))
+    A = J @ np.diag(rng.uniform(0.1, 10, 6)) @ J.T
+    b = rng.normal(size=m)
+    x, rank = solve(A, b)
+    assert rank == m
+    np.testing.assert_allclose(x, np.linalg.solve(A, b), rtol=1e-9, atol=1e-12 * np.abs(b).max())
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_redundant_rows_are_held_exactly_and_carry_nothing(seed):
+    # rows 2 and 4 are combinations of the rows before them: a consistent,
+    # singular system (held contacts of one rigid motion); every row holds,
+    # the dependent ones get 0
+    rng = np.random.default_rng(seed)
+    J = rng.normal(size=(5, 6))
+    J[2] = 0.3 * J[0] - 1.7 * J[1]
+    J[4] = J[3] + 2.0 * J[1]
+    A = J @ np.diag(rng.uniform(0.1, 10, 6)) @ J.T
+    b = A @ rng.normal(size=5)
+    x, rank = solve(A, b)
+    assert rank == 3
+    assert x[2] == 0.0 and x[4] == 0.0
+    np.testing.assert_allclose(A @ x, b, rtol=0, atol=1e-12 * np.abs(b).max())
+
+
+def test_a_redundant_set_turning_shares_its_load_continuously():
+    # Three contacts on two degrees of freedom, the third the sum of the
+    # others, turning with the body: their diagonals change order as they
+    # turn (a solve pivoted on the largest would move the load from one
+    # contact to another in a jump). The answer may be any solution; it must
+    # be one that moves as little as the rows do.
+    w = np.array([1.0, 5.0])
+    xs = []
+    for th in np.linspace(0.0, np.pi, 2001):
+        r1 = np.array([np.cos(th), np.sin(th)])
+        r2 = np.array([-np.sin(th), np.cos(th)])
+        J = np.array([r1, r2, r1 + r2])
+        A = J @ np.diag(w) @ J.T
+        b = A @ np.array([1.0, 0.5, 0.25])
+        x, rank = solve(A, b)
+        assert rank == 2
+        np.testing.assert_allclose(A @ x, b, rtol=0, atol=1e-12)
+        xs.append(x)
+    steps = np.abs(np.diff(np.array(xs), axis=0)).max()
+    assert steps < 1e-2, steps
+
+
+def test_zero_and_empty_sets():
+    x, rank = solve(np.zeros((2, 2)), np.zeros(2))
+    assert rank == 0 and np.all(x == 0.0)
+    x, rank = solve(np.zeros((0, 0)), np.zeros(0))
+    assert rank == 0
