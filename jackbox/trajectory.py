@@ -74,6 +74,14 @@ class Trajectory:
         return out
 
     @property
+    def held(self) -> tuple[str, ...]:
+        """Names of the contacts persistent (held closed) at the end of the run, sorted."""
+        last = {}
+        for k, event in zip(self.contact_constraint, self.contact_event):
+            last[int(k)] = event
+        return tuple(sorted(self.constraint_names[k] for k, event in last.items() if event == REST))
+
+    @property
     def fallback_seconds(self) -> float:
         """Simulated time integrated by the fallback (0: the exact method throughout)."""
         return float(np.sum(self.fallback_t[:, 1] - self.fallback_t[:, 0])) if len(self.fallback_t) else 0.0

@@ -90,3 +90,21 @@ def test_contact_quick_mode(tmp_path):
     assert all(_positive(r["run_s"]) for r in result["restitution"])
     assert _positive(result["resting"]["resting_ns_per_step"]) and result["resting"]["held_contacts"] == 4
     assert "| study |" in (tmp_path / "contact.md").read_text()
+
+
+def test_throughput_resting_row():
+    # jackbox bench's row for a step with held contacts (the settled plastic drop) against a
+    # free one: both figures measured, and the resting run really rests (the same four
+    # contacts held at its end, no impulse): a timing of the wrong thing would be worse than none
+    from jackbox.bench import SIZES, bench_resting, markdown
+
+    r = bench_resting(1, SIZES["quick"])
+    assert r["available"] and r["still_at_rest"]
+    assert r["held"] == ["bottom:0", "bottom:1", "ground:2", "ground:3"] and r["held_contacts"] == 4
+    for key in ("resting_ns_per_step", "free_ns_per_step", "ratio"):
+        assert _positive(r[key]), (key, r[key])
+    text = markdown({"command": "x", "machine": {"description": "m"}, "repeat": 1, "wall_seconds": 1.0,
+                     "quick": True, "sizes": SIZES["quick"], "load_average": {"start": None, "end": None},
+                     "scenes": [], "ceiling": {"reason": "-"}, "ensemble": {"reason": "-"}, "resting": r,
+                     "targets": []})
+    assert "## Held contacts (drop)" in text and "bottom:0, bottom:1, ground:2, ground:3" in text
