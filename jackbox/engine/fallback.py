@@ -32,12 +32,15 @@ trajectory shows where it was first order.
 import numpy as np
 from numba import njit
 
-from .impact import contact_matrix, solve_lcp
+from .impact import contact_matrix, lcp, solve_lcp
 from .modes import add_response
 from .records import ACC, AF, CAND, GS, HIT, LAM, LAMB, NEAR, QDS, QS, RHS, T_EVENT, T_GAP, T_VREST, VA, VB, VT, WINV
 
 #: Newton passes of the position projection (each a position LCP)
 PROJECTION_PASSES = 4
+#: Gauss-Seidel sweeps for the projection that keeps the angular momentum, when its matrix is too
+#: degenerate to enumerate (:func:`project_gaps`); beyond them the plain projection is taken
+KEPT_SWEEPS = 200
 
 
 @njit(cache=True)
@@ -133,9 +136,12 @@ def project_gaps(model, t, q, qd, p, tol, ws):
     the shift is kept to the directions that leave it unchanged. That
     momentum is linear in q at fixed rates, with gradient c, so this is the
     M-orthogonal projection of each correction off ``W c`` (a rank-one change
-    of the contact matrix), and it is kept exactly. (Without it, every
-    projection of a jack sliding along a wall moved the angular momentum by
-    its depth times the sliding speed: 5e-6 of its scale per step was seen.)
+    of the contact matrix), and it is kept exactly. Where no correction can
+    keep it (a contact whose only way out is along ``W c``: that LCP is then
+    singular and its solver does not finish in KEPT_SWEEPS), the pass takes
+    the plain projection. Without this, every projection of a jack sliding
+    along a wall moved the angular momentum by its depth times the sliding
+    speed: 5e-6 of its scale per step was seen.
     """
     n, C = model.n_dof, model.n_contact
     level = 0.5 * tol[T_EVENT]
@@ -175,6 +181,7 @@ def project_gaps(model, t, q, qd, p, tol, ws):
         for i in range(na):
             b[i] = g[rows[i]] + level
         contact_matrix(jac, winv, rows, np.int64(na), A)
+        kept = False
         if keep_momentum:
             for i in range(na):
                 s = 0.0
@@ -184,9 +191,13 @@ def project_gaps(model, t, q, qd, p, tol, ws):
             for i in range(na):
                 for j in range(na):
                     A[i, j] -= jw[i] * jw[j] / cwc
-        solve_lcp(A, b, np.int64(na), x, ws)
+            kept = lcp(A, b, np.int64(na), x, ws, np.int64(KEPT_SWEEPS))
+            if not kept:           # no way out that keeps it: the plain projection
+                contact_matrix(jac, winv, rows, np.int64(na), A)
+        if not kept:
+            solve_lcp(A, b, np.int64(na), x, ws)
         add_response(jac, winv, rows, na, x, n, q)
-        if keep_momentum:
+        if kept:
             s = 0.0
             for i in range(na):
                 s += jw[i] * x[i]

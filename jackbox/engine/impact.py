@@ -162,14 +162,25 @@ def solve_psd(A, b, m, x, ws):
 def solve_lcp(A, b, m, lam, ws):
     """Impulses (or forces) of the LCP ``w = A lam + b >= 0, lam >= 0, w . lam = 0``; False if unsolved.
 
+    :func:`lcp` with up to PGS_SWEEPS sweeps; a failure sets WARN_LCP in ``ws.k[FLAGS, 0]``.
+    """
+    if lcp(A, b, m, lam, ws, np.int64(PGS_SWEEPS)):
+        return True
+    ws.k[FLAGS, 0] |= WARN_LCP
+    return False
+
+
+@njit(cache=True)
+def lcp(A, b, m, lam, ws, sweeps):
+    """The LCP ``w = A lam + b >= 0, lam >= 0, w . lam = 0`` into lam; False if unsolved (flags nothing).
+
     Exact for up to MAX_ENUMERATED contacts: tries every active set, smallest
     first, and keeps the first whose impulses are non-negative and whose
     inactive contacts do not approach. ``A = J M^-1 J^T`` is positive
     semi-definite, so a solution exists and the velocities it gives are unique
     (the impulses are not, on a redundant set: the smallest set that works is
     kept). Larger sets use projected Gauss-Seidel, run until complementarity
-    holds to PGS_TOL; returns False (and sets WARN_LCP in ``ws.k[FLAGS, 0]``)
-    if it does not within PGS_SWEEPS.
+    holds to PGS_TOL; returns False if it does not within ``sweeps``.
     """
     bscale = 0.0
     for k in range(m):
@@ -215,7 +226,7 @@ def solve_lcp(A, b, m, lam, ws):
     # Projected Gauss-Seidel: converges for PSD A; used for very large contact sets.
     for k in range(m):
         lam[k] = 0.0
-    for sweep in range(PGS_SWEEPS):
+    for sweep in range(sweeps):
         for k in range(m):
             w = b[k]
             for j in range(m):
@@ -230,7 +241,6 @@ def solve_lcp(A, b, m, lam, ws):
             worst = max(worst, -w, min(w, lam[k] * A[k, k]))
         if worst <= PGS_TOL * bscale:
             return True
-    ws.k[FLAGS, 0] |= WARN_LCP
     return False
 
 
