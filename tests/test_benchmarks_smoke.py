@@ -108,3 +108,18 @@ def test_throughput_resting_row():
                      "scenes": [], "ceiling": {"reason": "-"}, "ensemble": {"reason": "-"}, "resting": r,
                      "targets": []})
     assert "## Held contacts (drop)" in text and "bottom:0, bottom:1, ground:2, ground:3" in text
+
+
+def test_campaign_quick_mode(tmp_path):
+    # benchmarks/campaign.py: the property tests' draws and checks at the issue's ranges; two
+    # scenes of one family here, only that it runs, counts and writes (its figures are the README's)
+    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "campaign.py"), "--examples", "2",
+                           "--families", "prescribed box", "--out", str(tmp_path)],
+                          cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    result = json.loads((tmp_path / "campaign.json").read_text())
+    (family,) = result["families"]
+    assert family["family"] == "prescribed box" and family["examples"] == 2
+    assert family["passed"] + len(family["failures"]) == 2
+    assert result["ranges"]["MASS_RATIO"] == [1e-4, 1e4]
+    assert "| prescribed box" in (tmp_path / "campaign.md").read_text()

@@ -393,17 +393,22 @@ def start_state(draw, points, L, w, ground, speed, r_jack, box_at_origin=False):
     return q, qd
 
 
+#: ranges of the random scenes: jack-to-box mass ratio, speeds in sqrt(g L), the square jack's
+#: half-size in L (0.7: it turns freely; up to 0.99: it can be wedged)
+MASS_RATIO, SPEED, SQUARE_SIZE = (1e-3, 1e3), (0.1, 10.0), 0.70
+
+
 @st.composite
 def free_scene(draw, structure, shape, gravity, ground):
     """Overrides for a random free-box scene of the structure `structure`, and dt."""
     L = draw(log_uniform(0.1, 10.0))
     w = L * draw(st.floats(0.02, 0.5))
     m_box = draw(log_uniform(0.1, 100.0))
-    m_jack = m_box * draw(log_uniform(1e-3, 1e3))
-    a = L * draw(st.floats(0.05, 0.99 if shape == "cross" else 0.70))   # turns freely
+    m_jack = m_box * draw(log_uniform(*MASS_RATIO))
+    a = L * draw(st.floats(0.05, 0.99 if shape == "cross" else SQUARE_SIZE))
     points = structure.points / structure.params()["a_jack"] * a
     r_jack = a * (math.sqrt(2.0) if shape == "square" else 1.0)
-    speed = math.sqrt(9.81 * L) * draw(log_uniform(0.1, 10.0))
+    speed = math.sqrt(9.81 * L) * draw(log_uniform(*SPEED))
     q, qd = draw(start_state(points, L, w, ground, speed, r_jack))
     e = draw(restitution)
     over = {"box.inner_half_width": L, "box.wall_thickness": w, "box.mass": m_box,
