@@ -36,6 +36,8 @@ METHODS = ("exact", "naive")
 MAX_STEPS = 1e15
 #: bytes a recorded sample holds: t, q (6), qd (6), energy
 RECORD_BYTES = 14 * 8
+#: bytes per logged contact event: time, contact, kind
+EVENT_BYTES = 3 * 8
 
 
 @dataclass
@@ -214,6 +216,12 @@ def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
             bar.update(i_new - i)
             i = i_new
             if status == K.IMPACT_LOG_FULL:
+                # the log doubles: refused, with what to change, where it would not fit
+                check_memory(2 * len(ev_t) * EVENT_BYTES,
+                             f"an event log of {2 * len(ev_t):,} contact events (t = {i * run.dt:.6g} s of "
+                             f"{run.n_steps * run.dt:.6g} s)",
+                             "shorten t_end, or look at why this scene has so many events (a jack rattling "
+                             "in a wedge, a chattering contact)")
                 ev_t, ev_k, ev_kind = (np.concatenate([a, np.zeros_like(a)]) for a in (ev_t, ev_k, ev_kind))
             elif status == K.NONFINITE:
                 raise NonFiniteStateError(

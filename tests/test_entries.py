@@ -148,3 +148,17 @@ def test_a_study_too_large_for_memory_is_refused_before_running(study, kw, words
     monkeypatch.setattr(jackbox.api, "available_memory", lambda: 10**6)      # 1 MB free
     with pytest.raises(SimulationError, match=re.escape(words)):
         study("drop", 10**5, t_end=0.5, **kw)
+
+
+def test_an_event_log_that_outgrows_memory_is_refused_in_one_line(monkeypatch):
+    # The event log starts with room for LOG_SIZE events (at least 8 per contact: 128 here)
+    # and doubles when full; a doubling that would not fit is refused with one line naming
+    # the log's size, where the run got to and what to change (it was a bare MemoryError).
+    # spring at e = 0.2 logs about 900 contact events in 10 s; "memory" here holds 200.
+    monkeypatch.setattr(jackbox.api, "LOG_SIZE", 32)
+    monkeypatch.setattr(jackbox.api, "available_memory", lambda: 200 * jackbox.api.EVENT_BYTES)
+    scene = jackbox.load_scene("spring", {"restitution": 0.2})
+    with pytest.raises(SimulationError, match=r"an event log of 256 contact events \(t = [0-9.]+ s of 10 s\) needs"):
+        jackbox.simulate(scene, t_end=10.0, record_every=10**6)
+    monkeypatch.setattr(jackbox.api, "available_memory", lambda: 10**9)
+    assert len(jackbox.simulate(scene, t_end=10.0, record_every=10**6).impact_t) > 0   # with room, it runs
