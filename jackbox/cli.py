@@ -124,6 +124,7 @@ def _parser() -> argparse.ArgumentParser:
                                      "  trajectory.npz   the trajectory (its keys: docs/scenes.md)\n"
                                      "  timeseries.png   positions, angles, energy, smallest gap, impulses\n"
                                      "  animation.html   the motion, offline, Play/Pause and a time slider\n"
+                                     "  plotly.min.js    the library the page loads (written once, kept)\n"
                                      "(--no-plots writes the trajectory only).")
     run.add_argument("scene", nargs="?", default="shaken",
                      help="built-in scene name or path to a .toml scene file (default: shaken)")
@@ -134,6 +135,10 @@ def _parser() -> argparse.ArgumentParser:
                      help="output folder (default: runs/<scene name>)")
     run.add_argument("--no-plots", action="store_true",
                      help="write the trajectory only: no timeseries.png, no animation.html")
+    run.add_argument("--plotlyjs", choices=("beside", "inline"), default="beside",
+                     help="beside: a small page that loads plotly.min.js from its folder, where it is "
+                          "written once and kept for later runs (default); inline: one self-contained "
+                          "page of about 5 MB")
     run.add_argument("--quiet", "-q", action="store_true", help="no progress bar or summary")
     run.set_defaults(func=cmd_run)
 
@@ -479,7 +484,7 @@ def cmd_run(args) -> int:
     wall = time.perf_counter() - t0
     written = [traj.save(out_dir / "trajectory.npz")]
     if not args.no_plots:
-        written += _pictures(traj, scene, out_dir, progress=not args.quiet)
+        written += _pictures(traj, scene, out_dir, progress=not args.quiet, plotlyjs=args.plotlyjs)
     # a folder never mixes two runs: pictures of an older one beside this trajectory go
     removed = [out_dir / name for name in RUN_PICTURES
                if out_dir / name not in written and (out_dir / name).exists()]
@@ -510,15 +515,16 @@ def cmd_run(args) -> int:
 RUN_PICTURES = ("timeseries.png", "animation.html")
 
 
-def _pictures(traj, scene, out_dir: Path, progress: bool) -> list[Path]:
-    """timeseries.png and animation.html of a run, beside its trajectory."""
+def _pictures(traj, scene, out_dir: Path, progress: bool, plotlyjs: str = "beside") -> list[Path]:
+    """timeseries.png and animation.html of a run, beside its trajectory (and plotly.min.js, if beside)."""
     from . import animate, plots
     from .geometry import Geometry
 
     geometry = Geometry.from_scene(scene, traj.meta.get("params"))
     png = plots.write_timeseries(traj, out_dir / "timeseries.png", geometry)
-    html = animate.write_animation(traj, out_dir / "animation.html", geometry=geometry, progress=progress)
-    return [png, html]
+    html = animate.write_animation(traj, out_dir / "animation.html", geometry=geometry, progress=progress,
+                                   plotlyjs=plotlyjs)
+    return [png, html] + ([out_dir / animate.PLOTLYJS_NAME] if plotlyjs == "beside" else [])
 
 
 def cmd_compare(args) -> int:

@@ -133,3 +133,18 @@ def test_cross_jack_without_ground(browser, tmp_path):
         assert len(x) == 5                                  # the two arms in one stroke
     finally:
         page.close()
+
+
+def test_a_page_with_plotly_beside_it_loads_offline(browser, tmp_path):
+    # jackbox run's default page: plotly.min.js loaded from the page's folder, no network
+    traj = jackbox.simulate("drop", t_end=0.5)
+    path = animate.write_animation(traj, tmp_path / "animation.html", plotlyjs="beside")
+    page = browser.open(path)
+    try:
+        page.wait_for(READY)
+        assert page.errors == [] and page.failed == []
+        assert any(url.endswith("/plotly.min.js") for url in page.requests), page.requests
+        assert all(url.startswith(("file:", "data:")) for url in page.requests), page.requests
+        assert page.eval(READY) == len(animate.figure(traj)["frames"])
+    finally:
+        page.close()

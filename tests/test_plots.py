@@ -350,13 +350,34 @@ def test_run_writes_trajectory_timeseries_and_animation(capsys, tmp_path):
     status, out, err = run_cli(capsys, "run", "drop", "--t-end", "1", "--out", "out")
     assert status == 0, err
     folder = tmp_path / "out"
-    assert {p.name for p in folder.iterdir()} == {"trajectory.npz", "timeseries.png", "animation.html"}
-    for name in ("trajectory.npz", "timeseries.png", "animation.html"):
+    files = {"trajectory.npz", "timeseries.png", "animation.html", "plotly.min.js"}
+    assert {p.name for p in folder.iterdir()} == files
+    for name in files:
         assert f"wrote      {folder.relative_to(tmp_path) / name}" in out
     assert_not_blank(read_png(folder / "timeseries.png"))
     html = (folder / "animation.html").read_text(encoding="utf-8")
     assert '"name":"ground"' in html and '"name":"jack"' in html and '"name":"box inner"' in html
     assert not list(folder.glob(".*"))                       # no temporary files left
+
+
+def test_runs_share_one_copy_of_plotly_beside_their_pages(capsys, tmp_path):
+    # Every run wrote a 5 MB page, most of it plotly.js. Now the page loads plotly.min.js
+    # from its folder (offline still), written there once: a second run into the folder
+    # keeps the same file (not rewritten), and its page stays small. --plotlyjs inline
+    # writes the self-contained page where it is wanted.
+    js = _plotlyjs()
+    assert run_cli(capsys, "run", "drop", "--t-end", "0.5", "--out", "r", "-q")[0] == 0
+    lib = tmp_path / "r" / "plotly.min.js"
+    assert lib.read_bytes() == js
+    stamp = lib.stat().st_mtime_ns, lib.stat().st_ino
+    assert run_cli(capsys, "run", "drop", "--t-end", "0.5", "--out", "r", "-q", "--set", "restitution=0.3")[0] == 0
+    assert (lib.stat().st_mtime_ns, lib.stat().st_ino) == stamp
+    page = (tmp_path / "r" / "animation.html").read_text(encoding="utf-8")
+    assert '<script charset="utf-8" src="plotly.min.js"></script>' in page
+    assert len(page) < len(js) / 4
+    assert run_cli(capsys, "run", "drop", "--t-end", "0.5", "--out", "i", "-q", "--plotlyjs", "inline")[0] == 0
+    assert not (tmp_path / "i" / "plotly.min.js").exists()
+    assert (tmp_path / "i" / "animation.html").stat().st_size > len(js)
 
 
 def test_run_method_default_and_choice(capsys, tmp_path):
