@@ -511,8 +511,8 @@ def cmd_run(args) -> int:
     return 0
 
 
-#: the pictures `jackbox run` writes beside trajectory.npz
-RUN_PICTURES = ("timeseries.png", "animation.html")
+#: the pictures `jackbox run` writes beside trajectory.npz (and the library its page loads)
+RUN_PICTURES = ("timeseries.png", "animation.html", "plotly.min.js")
 
 
 def _pictures(traj, scene, out_dir: Path, progress: bool, plotlyjs: str = "beside") -> list[Path]:

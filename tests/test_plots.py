@@ -378,6 +378,9 @@ def test_runs_share_one_copy_of_plotly_beside_their_pages(capsys, tmp_path):
     assert run_cli(capsys, "run", "drop", "--t-end", "0.5", "--out", "i", "-q", "--plotlyjs", "inline")[0] == 0
     assert not (tmp_path / "i" / "plotly.min.js").exists()
     assert (tmp_path / "i" / "animation.html").stat().st_size > len(js)
+    # an inline page into the first folder: the library no page loads any more goes with the old pictures
+    assert run_cli(capsys, "run", "drop", "--t-end", "0.5", "--out", "r", "-q", "--plotlyjs", "inline")[0] == 0
+    assert not lib.exists()
 
 
 def test_run_method_default_and_choice(capsys, tmp_path):
