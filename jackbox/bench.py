@@ -216,13 +216,7 @@ def bench_scene(name: str, repeat: int, size: dict, cold: bool = True) -> dict:
     }
     _say(f"{name}: kernel, {n} steps a run, {repeat} samples of each of {', '.join(variants)}")
     finals = {key: v.once() for key, v in variants.items()}        # warm, and the end states
-    for v in variants.values():
-        v.calibrate(size["sample_seconds"])
-    ns = {key: [] for key in variants}
-    for _ in range(repeat):
-        for key, v in variants.items():
-            ns[key].append(v.sample())
-    med = {key: statistics.median(x) for key, x in ns.items()}
+    ns, med = interleaved(variants, repeat, size["sample_seconds"])
 
     _say(f"{name}: lambdified reference, {size['reference_t']:g} s of the scene x {repeat}")
     from . import reference                   # sympy
@@ -251,6 +245,18 @@ def bench_scene(name: str, repeat: int, size: dict, cold: bool = True) -> dict:
         "runs_per_sample": {key: v.inner for key, v in variants.items()},
         "samples_ns_per_step": ns | {"reference": ref_ns},
     }
+
+
+def interleaved(loops: dict, repeat: int, seconds: float) -> tuple[dict, dict]:
+    """ns per step of each :class:`Loop`, ``repeat`` samples of about ``seconds`` each, the loops
+    interleaved so that a busy spell hits them alike; returns the samples and their medians."""
+    for v in loops.values():
+        v.calibrate(seconds)
+    ns = {key: [] for key in loops}
+    for _ in range(repeat):
+        for key, v in loops.items():
+            ns[key].append(v.sample())
+    return ns, {key: statistics.median(x) for key, x in ns.items()}
 
 
 class Loop:
@@ -318,13 +324,8 @@ def bench_resting(repeat: int, size: dict) -> dict:
     loops = {"resting": Loop(kernel, api.prepare(at_rest, t_end=size["rest_t"]), "exact", lean=True),
              "free": Loop(kernel, api.prepare(falling, t_end=size["rest_t"]), "exact", lean=True)}
     for v in loops.values():
-        v.once()
-        v.calibrate(size["sample_seconds"])
-    ns = {key: [] for key in loops}
-    for _ in range(repeat):
-        for key, v in loops.items():
-            ns[key].append(v.sample())
-    med = {key: statistics.median(x) for key, x in ns.items()}
+        v.once()                                  # warm
+    ns, med = interleaved(loops, repeat, size["sample_seconds"])
     # the run stays at rest: the same contacts held at its end, no event logged
     rest_run = api.simulate(at_rest, t_end=size["rest_t"], record_every=10**6)
     return {"available": True, "scene": DROP, "t_end": size["rest_t"], "held_contacts": len(held),
