@@ -183,7 +183,7 @@ def simulate(scene: Scene | str, t_end: float | None = None, dt: float | None = 
 def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
     """:func:`simulate` for a checked :class:`Run` (an ensemble member re-run in full, say)."""
     t_load = time.perf_counter()
-    kernel = loader.kernel_for(run.scene, log)
+    kernel = loader.kernel_for(run.scene, log, run.method)
     if log and not numba.config.DISABLE_JIT and not loader.is_cached(kernel, run.method):
         log(f"compiling the {run.method} kernel of {run.scene.name} (first use only) ...")
     compiled = loader.compile_kernel(kernel, run.method)

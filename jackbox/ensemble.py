@@ -395,7 +395,7 @@ def _execute(fn, spec, chunk, threads, scheduler, dask_local, progress, log, ste
     steps_per_member = spec.n_steps if steps_per_member is None else steps_per_member
     t_load = time.perf_counter()
     kind = "chaos" if spec.renorm_steps else "ensemble"
-    kernel = _kernel(spec)
+    kernel = _kernel(spec, kind)
     if log and not numba.config.DISABLE_JIT and not loader.is_cached(kernel, kind):
         log(f"compiling the engine's {kind} loop (once per machine, for every scene) ...")
     compiled = loader.compile_kernel(kernel, kind)
@@ -450,8 +450,8 @@ def _where(meta: dict) -> str:
     return f"{meta['threads']} thread(s)" if meta["threads"] else meta["where"]
 
 
-def _kernel(spec: EnsembleSpec):
-    return loader.kernel_for(spec.scene)
+def _kernel(spec: EnsembleSpec, method: str | None = None):
+    return loader.kernel_for(spec.scene, method=method)
 
 
 def _base_run(spec: EnsembleSpec) -> api.Run:

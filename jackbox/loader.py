@@ -31,9 +31,7 @@ import ast
 import hashlib
 import importlib.util
 import json
-import os
 import sys
-import tempfile
 import time
 import warnings
 from dataclasses import dataclass
@@ -65,45 +63,12 @@ _loaded: dict[str, ModuleType] = {}
 _intact: dict[tuple, bool] = {}
 #: binding modules and engine folders whose Numba cache files were checked against their manifest
 _verified: set = set()
-#: configured cache folder -> the folder used: itself, or a temporary one where it cannot be written
-_folders: dict[str, Path] = {}
 #: (cache folder, model file, its and the hot path's inode, mtime and size) -> kernel
 _stamped: dict[tuple, "Kernel"] = {}
 
 
-def configured_cache_dir() -> Path:
-    """The cache folder the environment names (it may not exist, or not be writable)."""
-    if os.environ.get("JACKBOX_CACHE_DIR"):
-        return Path(os.environ["JACKBOX_CACHE_DIR"]).expanduser()
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "jackbox"
-
-
-def cache_dir() -> Path:
-    """The cache folder: the configured one, or, where nothing can be written there, a
-    temporary folder for this process (compiled code is then not kept; one warning)."""
-    folder = configured_cache_dir()
-    key = str(folder)
-    if key not in _folders:
-        _folders[key] = folder
-        if not _can_write(folder):
-            _folders[key] = Path(tempfile.mkdtemp(prefix="jackbox-cache-"))
-            _warn(f"the cache folder {folder} cannot be written: compiling into {_folders[key]} "
-                  f"for this process only (set JACKBOX_CACHE_DIR to a writable folder to keep it)")
-    return _folders[key]
-
-
-engine.cache.folder = cache_dir      # the engine's machine code goes under the same folder
-
-
-def _can_write(folder: Path) -> bool:
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        tempfile.TemporaryFile(dir=folder).close()
-        return True
-    except OSError:
-        return False
-
+configured_cache_dir = engine.cache.configured_cache_dir
+cache_dir = engine.cache.cache_dir
 
 
 def recorded_hash(path: Path) -> str | None:
@@ -311,17 +276,30 @@ class Kernel:
         """Whether every model function was loaded from Numba's cache (none compiled in this process)."""
         return all(getattr(fn, "cache_hits", 0) for fn in self.module.COMPILED.values())
 
-    def table(self, loops=("exact",)):
-        """The model and the engine's loops as the one array the entry points take (made once per kernel)."""
-        if loops not in self._tables:
-            self._tables[loops] = engine.table(self.record, loops)
-        return self._tables[loops]
+    def table(self, loops=("exact",), lazy: bool = True):
+        """The model and the engine's loops as the one array the entry points take (made once per kernel).
+
+        lazy: the stages compiled on first need (engine.LAZY) may be left out,
+        for the exact loop of one run (it hands back a step that needs one);
+        a parallel loop over members gets them all.
+        """
+        key = (loops, lazy)
+        if key not in self._tables:
+            self._tables[key] = engine.table(self.record, loops, lazy)
+        return self._tables[key]
 
     def integrate_exact(self, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every,
                         rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, ev_kind, n_ev):
-        return engine.entry("run_exact")(
-            self.table(), q, qd, rest, p, tol, float(t0), float(dt), i_begin, i_end, n_total, record_every,
-            rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, ev_kind, n_ev)
+        while True:
+            i, n_rec, n_ev, status = engine.entry("run_exact")(
+                self.table(), q, qd, rest, p, tol, float(t0), float(dt), i_begin, i_end, n_total, record_every,
+                rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, ev_kind, n_ev)
+            if status != engine.MISSING:
+                return i, n_rec, n_ev, status
+            # a step needs a stage compiled on first need: compile it, then go on from that step
+            engine.prepare((), ("exact",))
+            self._tables.pop((("exact",), True), None)
+            i_begin = i
 
     def integrate(self, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every,
                   rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, n_imp):
@@ -331,10 +309,10 @@ class Kernel:
             rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, kind, n_imp)
 
     def run_members(self, *args):
-        return engine.entry("run_members")(self.table(), *args)
+        return engine.entry("run_members")(self.table(lazy=False), *args)
 
     def run_twin_members(self, *args):
-        return engine.entry("run_twin_members")(self.table(), *args)
+        return engine.entry("run_twin_members")(self.table(lazy=False), *args)
 
     def set_up_members(self, setup, Q0, QD0, P, TOL, OFFSET, GAP):
         return engine.entry("set_up_members")(self.table(()), setup, Q0, QD0, P, TOL, OFFSET, GAP)
@@ -368,10 +346,18 @@ def _stat(path: Path) -> tuple[int, int, int]:
     return st.st_ino, st.st_mtime_ns, st.st_size
 
 
-def kernel_for(scene: Scene, log=None) -> Kernel:
-    """The :class:`Kernel` of `scene` (model generated and its functions compiled if needed)."""
+def kernel_for(scene: Scene, log=None, method: str | None = None) -> Kernel:
+    """The :class:`Kernel` of `scene` (model generated and its functions compiled if needed).
+
+    method: the method :func:`compile_kernel` will be asked for next, if
+    known: the engine's parts it needs that are not cached start compiling in
+    a helper process now, while the model's functions compile here.
+    """
     path = ensure_model(scene, log)
-    if log and not numba.config.DISABLE_JIT and not _bound(path):
+    bound = numba.config.DISABLE_JIT or _bound(path)
+    if method is not None:
+        engine.start(ENTRY[method], (LOOP[method],), lazy=method == "exact", busy=0.0 if bound else MODEL_COST)
+    if log and not bound:
         log(f"compiling the model functions of {scene.name} (first use of this structure) ...")
     return load_kernel(path)
 
@@ -390,6 +376,8 @@ ENTRY = {"exact": ("run_exact", "fill_tolerances"), "naive": ("run_naive",),
          "chaos": ("run_twin_members", "set_up_members", "fill_tolerances")}
 #: the loop each method runs (compiled once as a function value)
 LOOP = {"exact": "exact", "naive": "naive", "ensemble": "exact", "chaos": "exact"}
+#: seconds a model's functions take to compile (2 cores; see engine.COST)
+MODEL_COST = 6.0
 
 
 def compile_kernel(kernel: Kernel, method: str | None = None) -> dict:
@@ -417,7 +405,7 @@ def compile_kernel(kernel: Kernel, method: str | None = None) -> dict:
         _check_manifest(engine.cache.files(), folder / "sums.json", "the engine")
     cached = bool(engine.cache.files())
     try:
-        result = engine.prepare(names, loops)
+        result = engine.prepare(names, loops, lazy=method == "exact")
     except Exception as exc:       # a damaged cache entry that slipped past the manifest
         if not cached:
             raise
@@ -425,7 +413,7 @@ def compile_kernel(kernel: Kernel, method: str | None = None) -> dict:
               f"({type(exc).__name__}: {str(exc)[:120]}): compiling it again")
         _clear(engine.cache.files(), folder / "sums.json")
         _reset_engine(names, loops)
-        result = engine.prepare(names, loops)
+        result = engine.prepare(names, loops, lazy=method == "exact")
     if result == "miss" and folder is not None:
         _write_manifest(engine.cache.files(), folder / "sums.json")
     # compiled now if either part was; loaded if either was loaded; else ready in memory

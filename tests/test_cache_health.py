@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import jackbox
-from jackbox import loader
+from jackbox import engine, loader
 from jackbox.errors import CacheWarning
 
 from .conftest import run_cli, write_scene
@@ -32,8 +32,9 @@ def fresh_cache(tmp_path, monkeypatch):
 
 def _forget(monkeypatch):
     """A new process, as far as the loader knows: nothing imported, checked or stamped."""
-    for table in ("_loaded", "_stamped", "_intact", "_folders"):
+    for table in ("_loaded", "_stamped", "_intact"):
         monkeypatch.setattr(loader, table, {})
+    monkeypatch.setattr(engine.cache, "_folders", {})
     monkeypatch.setattr(loader, "_verified", set())
 
 

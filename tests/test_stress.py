@@ -203,8 +203,8 @@ class _BudgetLoader:
     def __getattr__(self, name):
         return getattr(loader, name)
 
-    def kernel_for(self, scene, log=None):
-        return _Budgeted(loader.kernel_for(scene, log))
+    def kernel_for(self, scene, log=None, method=None):
+        return _Budgeted(loader.kernel_for(scene, log, method))
 
     def compile_kernel(self, module, *args, **kw):
         return loader.compile_kernel(module._module, *args, **kw)

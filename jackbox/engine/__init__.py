@@ -27,6 +27,10 @@ signature, then compiling is switched off, so no model can make Numba build
 
 from __future__ import annotations
 
+import importlib
+import os
+import subprocess
+import sys
 import warnings
 
 import numba
@@ -35,12 +39,13 @@ from numba.core import types
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
 from . import cache
-from .records import (TABLE, CROSSING, EXACT, NAIVE, RELEASE_AT, STEP, UPDATE, DONE, FALLBACK, IMPACT_LOG_FULL,
-                      IMPULSE, MAX_EVENTS, MODE_SLOTS, NONFINITE, RELEASE, REST, STALLED, T_AREST, T_BOXV, T_EVENT,
+
+cache.install()          # before any engine module is imported: each fixes its cache folder when decorated
+
+from .records import (TABLE, CROSSING, EXACT, FALLBACK_STEP, NAIVE, RELEASE_AT, STEP, UPDATE, DONE, FALLBACK,  # noqa: E402
+                      IMPACT_LOG_FULL, MISSING, NEED_FALLBACK, NEED_RELEASE, IMPULSE, MAX_EVENTS, MODE_SLOTS, NONFINITE, RELEASE, REST, STALLED, T_AREST, T_BOXV, T_EVENT,
                       T_GAP, T_RBOX, T_RJACK, T_SPEED, T_VREST, T_WALL, WARN_LCP, WARN_LOCATE, WARNING, Events, F8, I1,
                       I2, I8, Model, Samples, Setup, SetupType, SIGNATURES, SIZES, V1, V2)
-
-cache.install()
 
 V3 = types.Array(F8, 3, "C")
 #: module and argument types of every njit entry point (each takes the loop it runs first)
@@ -58,19 +63,29 @@ LOOPS = {
     "update": ("modes", "update_contacts", UPDATE, ()),
     "crossing": ("events", "first_crossing", CROSSING, ()),
     "release": ("events", "first_release", RELEASE_AT, ()),
-    "exact": ("loop", "integrate_exact", EXACT, ("step", "update", "crossing", "release")),
+    "fallback": ("fallback", "fallback_step", FALLBACK_STEP, ()),
+    "exact": ("loop", "integrate_exact", EXACT, ("step", "update", "crossing", "release", "fallback")),
     "naive": ("loop", "integrate", NAIVE, ()),
 }
 _loops: dict = {}
+#: the stages compiled on first need only: name -> its bit in Stages.missing (see jackbox.engine.loop)
+LAZY = {"release": NEED_RELEASE, "fallback": NEED_FALLBACK}
+#: what each part costs to compile, in seconds on the 2-core machine of benchmarks/results/compile.md
+#: (measured one by one in a fresh process): only to share the parts out between processes
+COST = {"exact": 11.0, "update": 8.5, "fallback": 8.0, "crossing": 6.0, "naive": 4.5, "step": 3.6, "release": 1.6,
+        "run_members": 7.8, "run_twin_members": 7.0, "set_up_members": 7.1, "run_exact": 0.4, "run_naive": 0.3,
+        "fill_tolerances": 0.2}
+#: a part -> the helper process compiling it now (see start)
+_helpers: dict = {}
 
-__all__ = ["DONE", "IMPACT_LOG_FULL", "NONFINITE", "STALLED", "IMPULSE", "REST", "RELEASE", "FALLBACK", "WARNING",
+_loops: dict = {}
+
+__all__ = ["DONE", "IMPACT_LOG_FULL", "MISSING", "NONFINITE", "STALLED", "IMPULSE", "REST", "RELEASE", "FALLBACK", "WARNING",
            "WARN_LCP", "WARN_LOCATE", "MAX_EVENTS", "MODE_SLOTS", "T_GAP", "T_EVENT", "T_VREST", "T_AREST", "T_BOXV", "T_WALL", "T_RJACK", "T_RBOX", "T_SPEED",
-           "Model", "Samples", "Events", "Setup", "SIGNATURES", "SIZES", "ENTRIES", "LOOPS", "entry", "compiled_loop", "prepare", "table"]
+           "Model", "Samples", "Events", "Setup", "SIGNATURES", "SIZES", "ENTRIES", "LOOPS", "LAZY", "entry", "compiled_loop", "prepare", "start", "table"]
 
 
 def _dispatcher(name: str):
-    import importlib
-
     module = importlib.import_module(f"{__name__}.{ENTRIES[name][0]}")
     return getattr(module, name)
 
@@ -90,15 +105,22 @@ def compiled_loop(name: str):
     return _loops[name]
 
 
-def table(model: Model, loops=("exact",)) -> np.ndarray:
+def table(model: Model, loops=("exact",), lazy: bool = True) -> np.ndarray:
     """The array every entry point takes: the model, then the stages and loops it needs (see ``TABLE``).
 
     Row 0: integers as they are, functions as their C addresses (0 for a loop
     or stage not asked for, which must then not be called); row 1: the
-    functions' native addresses. With Numba's JIT off, a tuple of the values.
+    functions' native addresses. lazy: a stage of LAZY that is neither in
+    memory nor in the cache is left out, and its bit set in the ``missing``
+    column (the exact loop then hands back a step that needs it); else every
+    stage is compiled now. With Numba's JIT off, a tuple of the values.
     """
     wanted = set(loops).union(*(LOOPS[name][3] for name in loops))
-    values = (*model, *(compiled_loop(name) if name in wanted else 0 for name in TABLE[len(model):]))
+    left_out = {name for name in LAZY if lazy and name in wanted and not ready(name)}
+    missing = sum(LAZY[name] for name in left_out)
+    values = (*model, *(missing if name == "missing" else
+                        compiled_loop(name) if name in wanted and name not in left_out else 0
+                        for name in TABLE[len(model):]))
     if numba.config.DISABLE_JIT:
         return values
     out = np.zeros((2, len(values)), np.int64)
@@ -108,6 +130,22 @@ def table(model: Model, loops=("exact",)) -> np.ndarray:
         else:
             out[0, i], out[1, i] = value.address, native_address(value)
     return out
+
+
+def ready(name: str) -> bool:
+    """Whether the part ``name`` (a loop or an entry point) is in memory or in the cache (loaded if so)."""
+    if numba.config.DISABLE_JIT or name in _loops or (name in ENTRIES and _dispatcher(name).signatures):
+        return True
+    if not cached(name):
+        return False
+    prepare(*(((), (name,)) if name in LOOPS else ((name,), ())))
+    return True
+
+
+def cached(name: str) -> bool:
+    """Whether the cache holds the machine code of the part ``name`` (its index file is there)."""
+    fn = LOOPS[name][1] if name in LOOPS else name
+    return any(cache.engine_cache_path().glob(f"*.{fn}-*.nbi"))
 
 
 def native_address(fn) -> int:
@@ -127,41 +165,110 @@ def native_address(fn) -> int:
         return 0
 
 
-def prepare(names, loops=()) -> str:
-    """Compile (or load from the cache) the entry points and function values named.
+def parts(names, loops=(), lazy: bool = False) -> list[str]:
+    """What :func:`prepare` would compile or load for these entry points and loops, in order.
 
-    Returns "memory" (all were ready in this process), "hit" (loaded from the
-    cache, none compiled), "miss" (at least one compiled now) or "disabled".
+    lazy: leave out the stages of LAZY that are not cached (the exact loop runs without them).
     """
-    import importlib
-
-    wanted = []
+    out = []
     for name in loops:      # what each needs first, then itself
         for need in (*LOOPS[name][3], name):
-            if need not in wanted and need not in _loops:
-                wanted.append(need)
+            if need not in out and need not in _loops and not (lazy and need in LAZY and not cached(need)):
+                out.append(need)
+    return out + [name for name in names if name not in out and not _dispatcher(name).signatures]
+
+
+def start(names, loops=(), lazy: bool = False, busy: float = 0.0) -> list[str]:
+    """Hand part of what ``prepare(names, loops)`` will compile to a helper process, now.
+
+    Compile time is user time: on a machine with two cores or more, a second
+    process compiles about half of the engine's parts that are not cached
+    (by their COST; ``busy``: seconds of other compiling this process does
+    first, the model's functions) into the cache, while this one compiles
+    the rest; :func:`prepare` then loads the helper's parts (or compiles
+    them itself if the helper failed). ``JACKBOX_COMPILE_JOBS=1`` turns it
+    off. Returns the parts handed out.
+    """
+    if numba.config.DISABLE_JIT or _jobs() < 2:
+        return []
+    todo = [name for name in parts(names, loops, lazy) if name not in _helpers and not cached(name)]
+    if not todo:
+        return []
+    mine, theirs, load = [], [], busy       # the heaviest first, each to the lighter side
+    helper_load = 0.5                         # (the helper's start: Python, Numba, the engine)
+    for name in sorted(todo, key=lambda n: -COST.get(n, 1.0)):
+        if helper_load < load:
+            theirs.append(name)
+            helper_load += COST.get(name, 1.0)
+        else:
+            mine.append(name)
+            load += COST.get(name, 1.0)
+    if not theirs:
+        return []
+    env = os.environ | {"JACKBOX_CACHE_DIR": str(cache.cache_dir()), "JACKBOX_COMPILE_JOBS": "1"}
+    env.pop("NUMBA_DISABLE_JIT", None)
+    try:
+        process = subprocess.Popen([sys.executable, "-m", f"{__name__}.helper", *theirs], env=env,
+                                   stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    except OSError:
+        return []
+    for name in theirs:
+        _helpers[name] = process
+    return theirs
+
+
+def _jobs() -> int:
+    """Processes that may compile at once (``JACKBOX_COMPILE_JOBS``, else 2 where there are two cores)."""
+    try:
+        return max(1, int(os.environ.get("JACKBOX_COMPILE_JOBS", "")))
+    except ValueError:
+        return min(2, os.cpu_count() or 1)
+
+
+def prepare(names, loops=(), lazy: bool = False) -> str:
+    """Compile (or load from the cache) the entry points and function values named.
+
+    lazy: leave out the stages of LAZY that are not cached (see :func:`table`).
+    Parts a helper process is compiling (:func:`start`) are done last, after
+    waiting for it: loaded from the cache, or compiled here if it failed.
+    Returns "memory" (all were ready in this process), "hit" (loaded from the
+    cache, none compiled), "miss" (at least one compiled now, here or by a
+    helper) or "disabled".
+    """
+    wanted = parts((), loops, lazy)
     if numba.config.DISABLE_JIT:
         for name in wanted:
             module, fn, _, _ = LOOPS[name]
             _loops[name] = getattr(importlib.import_module(f"{__name__}.{module}"), fn)
         return "disabled"
-    todo = [(name, _dispatcher(name)) for name in names if not _dispatcher(name).signatures]
-    if not todo and not wanted:
+    todo = wanted + [name for name in names if not _dispatcher(name).signatures]
+    if not todo:
         return "memory"
+    todo.sort(key=lambda name: name in _helpers)         # a helper's parts last
     misses = 0
+    for name in todo:
+        helper = _helpers.pop(name, None)
+        if helper is not None:
+            misses += 1
+            helper.wait()
+        misses += compile_part(name)
+    return "miss" if misses else "hit"
+
+
+def compile_part(name: str) -> bool:
+    """Compile (or load from the cache) the one part ``name``, a loop or an entry point; True if compiled."""
     with warnings.catch_warnings():
         # calls through function values: the documented, tested use, not news to a user
         warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
-        for name in wanted:
+        if name in LOOPS:
             module, fn, sig, _ = LOOPS[name]
             py_func = getattr(importlib.import_module(f"{__name__}.{module}"), fn)
             py_func = getattr(py_func, "py_func", py_func)
             compiled = numba.cfunc(sig, cache=True)(py_func)
-            misses += not compiled.cache_hits
             _loops[name] = compiled
-        for name, fn in todo:
-            before = sum(fn.stats.cache_misses.values())
-            fn.compile(ENTRIES[name][1])
-            fn.disable_compile()
-            misses += sum(fn.stats.cache_misses.values()) - before
-    return "miss" if misses else "hit"
+            return not compiled.cache_hits
+        fn = _dispatcher(name)
+        before = sum(fn.stats.cache_misses.values())
+        fn.compile(ENTRIES[name][1])
+        fn.disable_compile()
+        return sum(fn.stats.cache_misses.values()) > before

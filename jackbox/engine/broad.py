@@ -14,7 +14,7 @@ from numba import njit
 from .records import T_RBOX, T_RJACK, T_WALL
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
 def bound(xb, yb, th, xj, yj, tol, has_ground):
     """A lower bound on every gap of a box at (xb, yb, th) with the jack's centre at (xj, yj)."""
     c, s = math.cos(th), math.sin(th)

@@ -28,7 +28,7 @@ FORCE_EVENT = 1         #: a persistent contact's force reaches zero
 GAP_ROUNDOFF = 1e-3
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def event_value(model, step, kind, pos, ta, q, qd, s, p, tol, m, ws):
     """Re-step from (ta, q, qd) to time s; the event function there.
 
@@ -46,7 +46,7 @@ def event_value(model, step, kind, pos, ta, q, qd, s, p, tol, m, ws):
     return ws.c[LAM, pos]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, no_cpython_wrapper=True)
 def locate(model, step, kind, pos, ta, q, qd, tl, fl, tr, fr, guess, p, tol, m, ws):
     """Illinois iteration for the root of the event function in [tl, tr] (fl >= 0 > fr).
 
@@ -98,7 +98,7 @@ def locate(model, step, kind, pos, ta, q, qd, tl, fl, tr, fr, guess, p, tol, m, 
     return tl, tr
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def cubic_root(fa, fb, da, db, sl, sr):
     """The root in (sl, sr) of the cubic with values fa, fb and slopes da, db at 0 and 1, or -1.
 
@@ -120,7 +120,7 @@ def cubic_root(fa, fb, da, db, sl, sr):
     return 0.5 * (sl + sr)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, no_cpython_wrapper=True)
 def left_bracket(model, step, k, ta, h, fa, fb, da, db, sr, q, qd, p, tol, m, ws):
     """Left end of the bracket of gap k's first crossing before ta + sr h.
 
@@ -141,7 +141,7 @@ def left_bracket(model, step, k, ta, h, fa, fb, da, db, sr, q, qd, p, tol, m, ws
     return tl, fl
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
     """The earliest time in (ta, tb] where a free gap crosses its event level, or -1.
 
@@ -241,7 +241,7 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
     return best_l
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def first_release(model, step, ta, tb, q, qd, p, tol, m, ws):
     """When the earliest persistent contact's force turns negative in (ta, tb], or -1.
 

@@ -33,8 +33,9 @@ import numpy as np
 from numba import njit
 
 from .impact import contact_matrix, lcp, solve_lcp
-from .modes import add_response
-from .records import ACC, AF, CAND, GS, HIT, LAM, LAMB, NEAR, QDS, QS, RHS, T_EVENT, T_GAP, T_VREST, VA, VB, VT, WINV
+from .modes import add_response, log_event, project_rest, rest_index
+from .records import (ACC, AF, CAND, FALLBACK, GS, HIT, LAM, LAMB, MODE_AT, NEAR, QDS, QS, RHS, RIDX, SET_AT,
+                      STABLE_STEPS, T_EVENT, T_GAP, T_VREST, VA, VB, VT, WINV)
 
 #: Newton passes of the position projection (each a position LCP)
 PROJECTION_PASSES = 4
@@ -43,7 +44,7 @@ PROJECTION_PASSES = 4
 KEPT_SWEEPS = 200
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def moreau_step(model, t, h, q, qd, p, tol, ws):
     """One Moreau-Jean step from (t, q, qd) of length h, in place.
 
@@ -121,7 +122,7 @@ def moreau_step(model, t, h, q, qd, p, tol, ws):
     return mask
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def project_gaps(model, t, q, qd, p, tol, ws):
     """Move q the least (in the metric of M) so that no gap is below the event level.
 
@@ -203,3 +204,37 @@ def project_gaps(model, t, q, qd, p, tol, ws):
                 s += jw[i] * x[i]
             for d in range(n):
                 q[d] -= wc[d] * s / cwc
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def fallback_step(model, update, t, h, q, qd, p, tol, rest, ws, log, n_ev):
+    """One Moreau-Jean step (:mod:`.fallback`); hands back to the exact method once the contacts are stable.
+
+    At the hand-over the contacts the fallback ended closed are put exactly
+    on the event level with no normal rate (its first-order state leaves them
+    a little off, and the exact method would see a fall and a new Zeno
+    cascade), and the contact update finds the persistent set from the
+    accelerations' LCP. Returns ``(n_ev, m)``: m the persistent contacts the
+    exact method starts with (0 while the fallback goes on).
+    """
+    C = model.n_contact
+    mask = moreau_step(model, t, h, q, qd, p, tol, ws)
+    if mask == rest[C + SET_AT]:
+        rest[C + MODE_AT] += 1
+    else:
+        rest[C + MODE_AT] = 1
+        rest[C + SET_AT] = mask
+    if rest[C + MODE_AT] <= STABLE_STEPS:
+        return n_ev, 0
+    rest[C + MODE_AT] = 0
+    rest[C + SET_AT] = 0
+    t_next = t + h
+    n_ev = log_event(t_next, 0, np.int64(FALLBACK), log, n_ev)
+    if mask:
+        for k in range(C):
+            rest[k] = mask >> k & 1
+        project_rest(model, t_next, q, qd, p, rest_index(rest, C, ws.k[RIDX]), 0.5 * tol[T_EVENT], np.int64(2),
+                     ws)
+        for k in range(C):
+            rest[k] = 0
+    return update(model, t_next, q, qd, p, tol, rest, ws, log, n_ev)

@@ -14,7 +14,7 @@ from numba import njit
 from .records import T_BOXV, T_GAP, T_SPEED
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
 def speed_bound(qd, tol):
     """A bound on how fast any gap can change at rates qd (a tuple or an array)."""
     s = tol[T_BOXV]
@@ -23,7 +23,7 @@ def speed_bound(qd, tol):
     return s
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
 def step_reach(qd_a, qd_b, h, tol):
     """How close to contact a gap must come, at one end of a step of length h, to need a look.
 
@@ -36,7 +36,7 @@ def step_reach(qd_a, qd_b, h, tol):
     return h * max(speed_bound(qd_a, tol), speed_bound(qd_b, tol)) + tol[T_GAP]
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def hermite_extrema(fa, fb, da, db, ext):
     """Interior stationary points s in (0, 1) of the cubic with values fa, fb and slopes da, db.
 
@@ -71,7 +71,7 @@ def hermite_extrema(fa, fb, da, db, ext):
     return n
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def hermite(fa, fb, da, db, s):
     """The cubic with values fa, fb and slopes da, db at 0 and 1, at s."""
     s2 = s * s

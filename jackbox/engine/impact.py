@@ -24,7 +24,7 @@ from numba import njit
 from .records import FLAGS, HIT, IDX, LAM, LR, LX, MAX_ENUMERATED, PERM, R, RHS, VT, WARN_LCP, WINV, Y
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
 def contact_matrix(jac, winv, rows, m, A):
     """``A = J_R M^-1 J_R^T`` for the m contacts listed in rows (M diagonal: winv = diag M^-1)."""
     n = jac.shape[1]
@@ -37,7 +37,7 @@ def contact_matrix(jac, winv, rows, m, A):
             A[j, i] = s
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def solve_dense(A, b, m, x, ws):
     """Solve ``A[:m, :m] x = b[:m]`` by Gaussian elimination with partial pivoting.
 
@@ -85,7 +85,7 @@ RANK_TOL = 1e-11
 PGS_SWEEPS, PGS_TOL = 20000, 1e-12
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, no_cpython_wrapper=True)
 def factor_psd(A, m, ws):
     """Factor ``A[:m, :m]``, symmetric positive semi-definite, revealing its rank; returns the rank.
 
@@ -128,7 +128,7 @@ def factor_psd(A, m, ws):
     return rank
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, no_cpython_wrapper=True)
 def solve_factored(b, m, rank, x, ws):
     """``x`` for ``A x = b`` with A factored by :func:`factor_psd`; the dependent rows' unknowns are 0."""
     L, basic, y = ws.lu, ws.k[PERM], ws.c[Y]
@@ -158,7 +158,7 @@ def solve_psd(A, b, m, x, ws):
     return rank
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def solve_lcp(A, b, m, lam, ws):
     """Impulses (or forces) of the LCP ``w = A lam + b >= 0, lam >= 0, w . lam = 0``; False if unsolved.
 
@@ -170,7 +170,7 @@ def solve_lcp(A, b, m, lam, ws):
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def lcp(A, b, m, lam, ws, sweeps):
     """The LCP ``w = A lam + b >= 0, lam >= 0, w . lam = 0`` into lam; False if unsolved (flags nothing).
 
@@ -244,7 +244,7 @@ def lcp(A, b, m, lam, ws, sweeps):
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def resolve_impacts(model, t, q, qd, p, gap, active_tol, ws, log, n_imp):
     """Method "naive": the impulses of every contact with ``gap < active_tol``, all at once.
 

@@ -23,7 +23,7 @@ SCALE = 6.0
 assert SCALE == sum(WEIGHTS)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def rk4(model, t, q, qd, dt, p, q_out, qd_out, m, ws):
     """One RK4 step from (t, q, qd) of length dt into q_out, qd_out (they may be q and qd).
 

@@ -16,8 +16,12 @@ members of :mod:`jackbox.engine.members`) calls it through that value. So
 their machine code is generated once, not again inside every entry point
 that runs them (Numba would link and re-optimise the whole call tree into
 each caller). For the same reason the exact loop reaches its heavy stages
-(the integrator's step, the contact update, the two event searches) through
-a :class:`~jackbox.engine.records.Stages` record of function values.
+(the integrator's step, the contact update, the two event searches, the
+fallback) through a :class:`~jackbox.engine.records.Stages` record of
+function values. Two of them are compiled on first need only: a run with no
+held contact never needs the release search, nor one the exact method
+resolves throughout the fallback; the loop then hands the step back
+(MISSING) and the caller compiles them and calls again.
 """
 
 import math
@@ -25,17 +29,17 @@ import math
 import numpy as np
 from numba import njit
 
-from .fallback import moreau_step
 from .impact import resolve_impacts
 from .modes import log_event, project_rest, rest_index
-from .records import (DONE, FALLBACK, FLAGS, GA, GB, HANDOFF, IMPACT_LOG_FULL, MAX_EVENTS, MODE_AT, MODE_BUDGET,
-                      MODE_SLOTS, NONFINITE, ZENO_PASSES, ZENO_SPAN, Q0, QB, QD0, QDB, QDS, QS, RELEASE, RIDX, SET_AT, STABLE_STEPS, T_EVENT,
+from .records import (DONE, FALLBACK, FLAGS, GA, GB, HANDOFF, IMPACT_LOG_FULL, MAX_EVENTS, MISSING, MODE_AT,
+                      MODE_BUDGET, NEED_FALLBACK, NEED_RELEASE,
+                      MODE_SLOTS, NONFINITE, ZENO_PASSES, ZENO_SPAN, Q0, QB, QD0, QDB, QDS, QS, RELEASE, RIDX, SET_AT, T_EVENT,
                       WARN_LCP, WARN_LOCATE, WARNING, EXACT_AT, MODEL_AT, NAIVE_AT, STAGES_AT, ExactType, ModelType,
                       NaiveType, StagesType, Events, Samples, borrow, from_table, keep, scratch)
 from .gaps import step_reach
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def record(model, t, q, qd, p, n, out, box):
     """Store sample n of ``out`` (a Samples record): time, the 6 coordinates and rates, the energy."""
     out.t[n] = t
@@ -67,7 +71,7 @@ def integrate(model, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every, ou
     return result
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def naive_steps(model, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec, log, n_imp, ws):
     """The body of :func:`integrate`, on borrowed views (:func:`~.records.borrow`) and its scratch ``ws``."""
     gap = ws.c[GA]
@@ -91,7 +95,7 @@ def naive_steps(model, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every, 
     return i_end, n_rec, n_imp, DONE
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, no_cpython_wrapper=True)
 def let_go(model, stages, t, q, qd, p, tol, rest, m, ws, log, n_ev, changes):
     """The contact update where a persistent contact's force pulls; the gaps at t into ``ws.c[GA]``.
 
@@ -107,7 +111,7 @@ def let_go(model, stages, t, q, qd, p, tol, rest, m, ws, log, n_ev, changes):
     return n_ev, m, changes + 1, True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, no_cpython_wrapper=True)
 def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial):
     """Take the state from ta to tb through every event in between.
 
@@ -117,7 +121,8 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
     DONE, or HANDOFF when the step is for the fallback (:mod:`.fallback`): an
     event made no progress twice, the contact modes changed more than
     MODE_BUDGET times, ZENO_PASSES passes advanced by less than ZENO_SPAN of
-    the step (Zeno in several contacts), or MAX_EVENTS passes did not reach tb.
+    the step (Zeno in several contacts), or MAX_EVENTS passes did not reach tb;
+    MISSING when it needs the release stage and that is not compiled.
     """
     n = model.n_dof
     C = model.n_contact
@@ -139,6 +144,8 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
         if not trial:
             stages.step(model, ta, q, qd, target - ta, p, qb, qdb, m, ws)
         if m > 0 and watch_release and not releasing:
+            if stages.missing & NEED_RELEASE:
+                return n_ev, m, MISSING
             tr = stages.release(model, stages.step, ta, target, q, qd, p, tol, m, ws)
             if tr == ta:       # a persistent contact already pulls: the contact update decides
                 n_ev, m, changes, watch_release = let_go(model, stages, ta, q, qd, p, tol, rest, m, ws, log, n_ev,
@@ -201,41 +208,7 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
     return n_ev, m, HANDOFF
 
 
-@njit(cache=True)
-def fallback_step(model, stages, t, h, q, qd, p, tol, rest, ws, log, n_ev):
-    """One Moreau-Jean step (:mod:`.fallback`); hands back to the exact method once the contacts are stable.
-
-    At the hand-over the contacts the fallback ended closed are put exactly
-    on the event level with no normal rate (its first-order state leaves them
-    a little off, and the exact method would see a fall and a new Zeno
-    cascade), and the contact update finds the persistent set from the
-    accelerations' LCP. Returns ``(n_ev, m)``: m the persistent contacts the
-    exact method starts with (0 while the fallback goes on).
-    """
-    C = model.n_contact
-    mask = moreau_step(model, t, h, q, qd, p, tol, ws)
-    if mask == rest[C + SET_AT]:
-        rest[C + MODE_AT] += 1
-    else:
-        rest[C + MODE_AT] = 1
-        rest[C + SET_AT] = mask
-    if rest[C + MODE_AT] <= STABLE_STEPS:
-        return n_ev, 0
-    rest[C + MODE_AT] = 0
-    rest[C + SET_AT] = 0
-    t_next = t + h
-    n_ev = log_event(t_next, 0, np.int64(FALLBACK), log, n_ev)
-    if mask:
-        for k in range(C):
-            rest[k] = mask >> k & 1
-        project_rest(model, t_next, q, qd, p, rest_index(rest, C, ws.k[RIDX]), 0.5 * tol[T_EVENT], np.int64(2),
-                     ws)
-        for k in range(C):
-            rest[k] = 0
-    return stages.update(model, t_next, q, qd, p, tol, rest, ws, log, n_ev)
-
-
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def enter_fallback(t, rest, C, log, n_ev):
     """Log the hand-over to the fallback at t: the persistent contacts are let go (the fallback has none)."""
     n_ev = log_event(t, 1, np.int64(FALLBACK), log, n_ev)
@@ -248,7 +221,7 @@ def enter_fallback(t, rest, C, log, n_ev):
     return n_ev
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def log_warnings(t, ws, log, n_ev):
     """A WARNING event for each solver failure flagged in ``ws.k[FLAGS, 0]`` since the last call."""
     flags = ws.k[FLAGS, 0]
@@ -267,7 +240,9 @@ def integrate_exact(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, 
     rest: (n_contact + MODE_SLOTS,) the contacts' modes (0 free, 1 persistent)
     and the fallback's state, carried between calls. tol: the ``T_*`` slots.
     log: the event log (time, contact, IMPULSE/REST/RELEASE/FALLBACK/WARNING).
-    Returns ``(step reached, n_rec, n_ev, status)``.
+    Returns ``(step reached, n_rec, n_ev, status)``; MISSING (the step
+    undone) when a step needs a stage that ``stages.missing`` says is not
+    compiled: the release (a contact is held) or the fallback.
 
     Every array goes on to the stages as a borrowed view: the arguments live
     as long as this call, the scratch as long as ``keep`` holds it.
@@ -279,7 +254,7 @@ def integrate_exact(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, 
     return result
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec,
                 log, n_ev, ws):
     """The body of :func:`integrate_exact`, on borrowed views and its scratch ``ws``."""
@@ -319,6 +294,8 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
                     break
             if i_fly == i_stop:    # stopped only to record: fly on
                 continue
+        if rest[C + MODE_AT] > 0 and stages.missing & NEED_FALLBACK:
+            return i, n_rec, n_ev, MISSING
         t = t0 + i * dt
         t_next = t0 + (i + 1) * dt
         for d in range(n):
@@ -333,7 +310,7 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
             ga_ok = False
             have_trial = False
         if rest[C + MODE_AT] > 0:
-            n_ev, m = fallback_step(model, stages, t, dt, q, qd, p, tol, rest, ws, log, n_ev)
+            n_ev, m = stages.fallback(model, stages.update, t, dt, q, qd, p, tol, rest, ws, log, n_ev)
             ga_ok = False
         else:
             # The step with gap rows: quiet when every gap, at both ends of the
@@ -362,14 +339,18 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
                     ga[k] = gb[k]
             else:
                 n_ev, m, status = advance(model, stages, t, t_next, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
-                if status == HANDOFF:    # undo the step: the fallback takes it
+                if status == HANDOFF and stages.missing & NEED_FALLBACK:
+                    status = MISSING
+                if status != DONE:       # undo the step: the fallback takes it, or the caller compiles a stage
                     for d in range(n):
                         q[d] = q0[d]
                         qd[d] = qd0[d]
                     for k in range(C + MODE_SLOTS):
                         rest[k] = rest0[k]
+                    if status == MISSING:
+                        return i, n_rec, n_before, MISSING
                     n_ev = enter_fallback(t, rest, C, log, n_before)
-                    n_ev, m = fallback_step(model, stages, t, dt, q, qd, p, tol, rest, ws, log, n_ev)
+                    n_ev, m = stages.fallback(model, stages.update, t, dt, q, qd, p, tol, rest, ws, log, n_ev)
                     ga_ok = False
         if ws.k[FLAGS, 0]:        # (a call per step otherwise: the flags are almost always clear)
             n_ev = log_warnings(t_next, ws, log, n_ev)

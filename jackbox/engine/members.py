@@ -31,12 +31,12 @@ TALLY = 5
 LOG_SIZE = 256
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def new_log(size):
     return Events(np.empty(size), np.empty(size, np.int64), np.empty(size, np.int64))
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, stop, out, n_rec, log, tally):
     """Steps i..stop of one member through any number of full event logs.
 
@@ -68,7 +68,14 @@ def run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, stop, out, n_r
             log = new_log(2 * log.t.shape[0])
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
+def copy_to(dst, src):
+    """dst[:] = src, as a loop (Numba compiles a slice assignment's shape check and error path at each use)."""
+    for i in range(src.shape[0]):
+        dst[i] = src[i]
+
+
+@njit(cache=True, no_cpython_wrapper=True)
 def new_tally():
     tally = np.zeros(TALLY)
     tally[TALLY_FIRST] = np.nan
@@ -76,25 +83,25 @@ def new_tally():
     return tally
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def fallback_time(tally, t):
     """Time spent in the fallback up to t (a stretch still running counted up to t)."""
     since = tally[TALLY_SINCE]
     return tally[TALLY_FALLBACK] + (t - since if since == since else 0.0)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def new_modes(model):
     """A run's mode array (see :func:`~.loop.integrate_exact`): every contact free, the exact method on."""
     return np.zeros(model.n_contact + MODE_SLOTS, np.int64)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def new_samples(n):
     return Samples(np.empty(n), np.empty((n, 6)), np.empty((n, 6)), np.empty(n))
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def run_member(model, exact, stages, q0, qd0, p, tol, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
     """One ensemble member from its start state to n_steps.
 
@@ -112,11 +119,11 @@ def run_member(model, exact, stages, q0, qd0, p, tol, dt, n_steps, sample_steps,
     i, n_rec, status, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, 0, 0, out, 0, log, tally)
     s = 0
     if s < sample_steps.shape[0] and sample_steps[s] == 0:
-        samp_q[s, :] = out.q[0]
-        samp_qd[s, :] = out.qd[0]
+        copy_to(samp_q[s], out.q[0])
+        copy_to(samp_qd[s], out.qd[0])
         s += 1
-    fin_q[:] = out.q[0]
-    fin_qd[:] = out.qd[0]
+    copy_to(fin_q, out.q[0])
+    copy_to(fin_qd, out.qd[0])
     fin[0] = out.energy[0]
     while status == DONE and i < n_steps:
         stop = sample_steps[s] if s < sample_steps.shape[0] else n_steps
@@ -124,11 +131,11 @@ def run_member(model, exact, stages, q0, qd0, p, tol, dt, n_steps, sample_steps,
         if status != DONE:
             break
         if s < sample_steps.shape[0] and stop == sample_steps[s]:
-            samp_q[s, :] = out.q[1]
-            samp_qd[s, :] = out.qd[1]
+            copy_to(samp_q[s], out.q[1])
+            copy_to(samp_qd[s], out.qd[1])
             s += 1
-        fin_q[:] = out.q[1]
-        fin_qd[:] = out.qd[1]
+        copy_to(fin_q, out.q[1])
+        copy_to(fin_qd, out.qd[1])
         fin[0] = out.energy[1]
     fin[1] = tally[TALLY_IMPULSES]
     fin[2] = tally[TALLY_FIRST]
@@ -138,7 +145,7 @@ def run_member(model, exact, stages, q0, qd0, p, tol, dt, n_steps, sample_steps,
     fin[6] = tally[TALLY_WARNINGS]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
 def parts(table):
     """The model, the exact loop and its stages from a table (see :func:`~.records.from_table`)."""
     return (from_table(table, MODEL_AT, ModelType), from_table(table, EXACT_AT, ExactType),
@@ -153,14 +160,14 @@ def run_members(table, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_
 
 
 # (a prange loop takes its records as arguments: Numba's parfor lowering cannot rebuild one made in the same function)
-@njit(cache=True, parallel=True)
+@njit(cache=True, no_cpython_wrapper=True, parallel=True)
 def all_members(model, exact, stages, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
     for j in prange(Q0.shape[0]):
         run_member(model, exact, stages, Q0[j], QD0[j], P[j], TOL[j], dt, n_steps, sample_steps, samp_q[j], samp_qd[j],
                    fin_q[j], fin_qd[j], fin[j])
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def run_twins(model, exact, stages, q0, qd0, dq, dqd, p, tol, dt, n_steps, renorm_steps, scale, stretch, fin):
     """Twin trajectories of one member for the finite-time Lyapunov exponent.
 
@@ -175,7 +182,10 @@ def run_twins(model, exact, stages, q0, qd0, dq, dqd, p, tol, dt, n_steps, renor
     """
     n = model.n_dof
     q, qd = q0.copy(), qd0.copy()
-    qt, qdt = q0 + dq, qd0 + dqd
+    qt, qdt = q0.copy(), qd0.copy()
+    for d in range(n):
+        qt[d] += dq[d]
+        qdt[d] += dqd[d]
     d0 = 0.0
     for d in range(n):
         d0 += (dq[d] / scale[d]) ** 2 + (dqd[d] / scale[n + d]) ** 2
@@ -233,7 +243,7 @@ def run_twin_members(table, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps,
     all_twins(model, exact, stages, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, no_cpython_wrapper=True, parallel=True)
 def all_twins(model, exact, stages, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin):
     for j in prange(Q0.shape[0]):
         run_twins(model, exact, stages, Q0[j], QD0[j], DQ[j], DQD[j], P[j], TOL[j], dt, n_steps, renorm_steps, scale,
@@ -244,7 +254,7 @@ def all_twins(model, exact, stages, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renor
 # a member's setup: its own work, in parallel, from the study's Setup and its index alone
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def grid_index(i, axis, n_axes, side):
     """Coordinate ``axis`` (0 .. side - 1) of point i of a grid of side^n_axes points (the last axis fastest)."""
     for _ in range(n_axes - 1 - axis):
@@ -252,7 +262,7 @@ def grid_index(i, axis, n_axes, side):
     return i % side
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def set_up_member(model, setup, i, q, qd, p, tol, offset):
     """Member i's start (q, qd), parameters p, tolerance row and chaos twin's offset; returns its start gap.
 
@@ -263,9 +273,9 @@ def set_up_member(model, setup, i, q, qd, p, tol, offset):
     smallest of the start state (negative: inside a wall).
     """
     n = model.n_dof
-    q[:] = setup.q
-    qd[:] = setup.qd
-    p[:] = setup.p
+    copy_to(q, setup.q)
+    copy_to(qd, setup.qd)
+    copy_to(p, setup.p)
     k = setup.perturb_at.shape[0]
     for j in range(k):
         if setup.grid == 0:
@@ -286,7 +296,7 @@ def set_up_member(model, setup, i, q, qd, p, tol, offset):
         c = grid_index(i, a, setup.sweep_lo.shape[0], side)
         p[setup.sweep_at[s]] = lo + (hi - lo) * c / (side - 1) if side > 1 else lo
     if setup.sweep_at.shape[0] == 0:        # the shared parameters: the shared row
-        tol[:] = setup.tol
+        copy_to(tol, setup.tol)
     else:
         set_tolerances(model, p, setup.jack_factor, setup.n_points, setup.n_steps, setup.dt,
                        -1.0 if setup.box_swept else setup.tol[T_BOXV], tol)
@@ -310,7 +320,7 @@ def set_up_members(table, setup, Q0, QD0, P, TOL, OFFSET, GAP):
     all_setups(from_table(table, MODEL_AT, ModelType), setup, Q0, QD0, P, TOL, OFFSET, GAP)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, no_cpython_wrapper=True, parallel=True)
 def all_setups(model, setup, Q0, QD0, P, TOL, OFFSET, GAP):
     for j in prange(Q0.shape[0]):
         GAP[j] = set_up_member(model, setup, setup.first + j, Q0[j], QD0[j], P[j], TOL[j], OFFSET[j])

@@ -28,7 +28,7 @@ from .records import (ACC, BIAS, CAND, FLAGS, GS, HIT, IMPULSE, LAM, NEAR, NEWRE
                       RIDX, T_AREST, T_EVENT, T_GAP, T_VREST, VB, WINV)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def rest_index(rest, C, ridx):
     """Indices of the persistent contacts (of the first C slots of ``rest``) into ridx; returns their number."""
     m = 0
@@ -39,7 +39,7 @@ def rest_index(rest, C, ridx):
     return m
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
 def add_response(jac, winv, ridx, m, x, n, out):
     """out += M^-1 J^T x over the m contacts ``ridx[:m]`` (M diagonal: ``winv`` = diag(M^-1)).
 
@@ -53,7 +53,7 @@ def add_response(jac, winv, ridx, m, x, n, out):
         out[d] += winv[d] * s
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
 def accel(model, t, q, qd, p, m, a, ws):
     """Accelerations into a: the model's own (m = 0), or with the m persistent contacts held.
 
@@ -67,7 +67,7 @@ def accel(model, t, q, qd, p, m, a, ws):
         contact_accel(model, t, q, qd, p, m, a, ws)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def contact_accel(model, t, q, qd, p, m, a, ws):
     """Accelerations with the m persistent contacts (``ws.k[RIDX]``) held closed.
 
@@ -94,7 +94,7 @@ def contact_accel(model, t, q, qd, p, m, a, ws):
     add_response(jac, winv, ridx, m, lam, n, a)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def project_rest(model, t, q, qd, p, m, level, passes, ws):
     """Put the persistent contacts back on gap = -level and rate = 0 (removes RK4's drift).
 
@@ -128,7 +128,7 @@ def project_rest(model, t, q, qd, p, m, level, passes, ws):
     add_response(jac, winv, ridx, m, x, n, qd)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def log_event(t, k, kind, log, n_ev):
     """Append an event to the log (an Events record) if it has room; returns the new count."""
     if n_ev < log.t.shape[0]:
@@ -138,7 +138,7 @@ def log_event(t, k, kind, log, n_ev):
     return n_ev + 1
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
     """At an event: impulses for the contacts that take part, then the persistent set.
 

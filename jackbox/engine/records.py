@@ -24,6 +24,12 @@ IMPACT_LOG_FULL = 1     #: the event log is full: the caller grows it and calls 
 NONFINITE = 2
 STALLED = 3             #: (no longer returned by the exact loop: a step it cannot resolve goes to the fallback)
 HANDOFF = 4             #: (inside the exact loop only) this step goes to the fallback
+MISSING = 5             #: a stage this step needs is not compiled (Stages.missing): the caller compiles it and
+                        #: calls again from the step returned (the step was undone)
+
+# bits of Stages.missing: the stages compiled on first need only (a run with no held contact never releases one)
+NEED_RELEASE = 1
+NEED_FALLBACK = 2
 
 # kinds of contact events in the event log
 IMPULSE = 0             #: an impulse acted on the contact
@@ -145,7 +151,7 @@ Scratch = namedtuple("Scratch", ["work", "jac", "c", "n", "k", "rest0", "A", "su
 ScratchType = types.NamedTuple([V2, V2, V2, V2, types.Array(I8, 2, "C"), I1, V2, V2, V2, V1, V1], Scratch)
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def scratch(model):
     """Every scratch array the loops need, sized for the model: allocated once per call."""
     n, C = model.n_dof, model.n_contact
@@ -177,10 +183,14 @@ UPDATE = types.UniTuple(I8, 2)(ModelType, F8, V1, V1, V1, V1, I1, ScratchType, E
 CROSSING = F8(ModelType, StepType, F8, F8, V1, V1, V1, V1, I1, I8, ScratchType)
 #: the first release of a persistent contact in a step: (model, step, ta, tb, q, qd, p, tol, m, ws)
 RELEASE_AT = F8(ModelType, StepType, F8, F8, V1, V1, V1, V1, I8, ScratchType)
-#: the heavy stages of the exact loop, as function values
-Stages = namedtuple("Stages", ["step", "update", "crossing", "release"])
-StagesType = types.NamedTuple([StepType, types.FunctionType(UPDATE), types.FunctionType(CROSSING),
-                               types.FunctionType(RELEASE_AT)], Stages)
+UpdateType = types.FunctionType(UPDATE)
+#: one step of the fallback: (model, update, t, h, q, qd, p, tol, rest, ws, log, n_ev) -> (n_ev, m)
+FALLBACK_STEP = types.UniTuple(I8, 2)(ModelType, UpdateType, F8, F8, V1, V1, V1, V1, I1, ScratchType, EventsType,
+                                      I8)
+#: the heavy stages of the exact loop, as function values, and which of them are not compiled (NEED_* bits)
+Stages = namedtuple("Stages", ["step", "update", "crossing", "release", "fallback", "missing"])
+StagesType = types.NamedTuple([StepType, UpdateType, types.FunctionType(CROSSING), types.FunctionType(RELEASE_AT),
+                               types.FunctionType(FALLBACK_STEP), I8], Stages)
 
 #: the exact loop: (model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every,
 #: out, n_rec, log, n_ev) -> (step reached, n_rec, n_ev, status)

@@ -41,7 +41,7 @@ L_AT, W_BOX_AT, G_AT, JACK_AT = 2, 3, 6, 9
 BOX_SAMPLES_PER_STEP, BOX_SAMPLES_MIN, BOX_SAMPLES_MAX = 4, 2001, 20001
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def box_speed_bound(model, p, t_end, n_samples, r_box):
     """Largest speed of any point of a prescribed box over [0, t_end], sampled at n_samples times."""
     speed = 0.0
@@ -52,7 +52,7 @@ def box_speed_bound(model, p, t_end, n_samples, r_box):
     return speed
 
 
-@njit(cache=True)
+@njit(cache=True, no_cpython_wrapper=True)
 def set_tolerances(model, p, jack_factor, n_points, n_steps, dt, boxv, out):
     """Fill ``out`` (T_SPEED + n_dof slots) for parameters p.
 
@@ -71,7 +71,8 @@ def set_tolerances(model, p, jack_factor, n_points, n_steps, dt, boxv, out):
         for i in range(n_points):
             r_jack = max(r_jack, math.hypot(p[JACK_AT + 2 * i], p[JACK_AT + 2 * i + 1]))
     r_box = math.sqrt(2.0) * (L + w)
-    out[:] = 0.0
+    for i in range(out.shape[0]):
+        out[i] = 0.0
     out[T_GAP] = GAP_TOL * L
     out[T_EVENT] = EVENT_TOL * L
     out[T_VREST] = REST_TOL * v_scale

@@ -1,0 +1,170 @@
+"""What is compiled, where it is cached, and when: the engine's stages on first need, a helper
+process for half of the work, and no engine code in Numba's own ``__pycache__``.
+
+Compile time is user time (benchmarks/results/compile.md): a run compiles only the stages it
+reaches, and what it does compile is shared between two processes. These tests hold the
+machinery to its promises without timing anything: a run that needs a stage it did not compile
+first gives the numbers of a run that had it all along; the parts are shared out by cost; every
+engine function is cached under the engine's digest, never beside its source.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numba.core.dispatcher import Dispatcher
+
+import jackbox
+from jackbox import api, engine, loader
+from jackbox.ensemble import ensemble
+
+#: the engine's modules with compiled functions
+MODULES = ("records", "integrator", "gaps", "broad", "impact", "events", "modes", "fallback", "loop", "tolerances",
+           "draws", "members")
+#: a weightless box spinning at 10 rad/s with a cross jack: some members need the fallback
+#: (benchmarks/contact.py, "weightless spinning box, cross jack")
+WEIGHTLESS = {"box.inner_half_width": 1.0, "box.wall_thickness": 0.1, "box.mass": 1000.0, "jack.mass": 0.01,
+              "jack.half_size": 0.1, "restitution": 0.5, "gravity": 0.0, "world.ground": False,
+              "initial.q": [0, 0, 0, -0.5, 0, 0.3], "initial.qd": [0, 0, 10, 0, -5, 10], "jack.shape": "cross"}
+
+
+def test_every_engine_function_is_cached_under_the_engine_digest():
+    # Numba fixes a function's cache folder when it is decorated; one decorated before jackbox knew
+    # its cache folder went to jackbox/engine/__pycache__, stamped by its own file only, and was served
+    # stale after an edit of a callee in another module.
+    checked = 0
+    for name in MODULES:
+        module = importlib.import_module(f"jackbox.engine.{name}")
+        for fn in vars(module).values():
+            if isinstance(fn, Dispatcher) and fn.py_func.__module__ == module.__name__:
+                path = Path(fn._cache._cache_path)
+                assert path.name == engine.cache.DIGEST and path.parent.name == "engine", (fn, path)
+                checked += 1
+    assert checked > 40
+
+
+def _without_lazy_stages(monkeypatch):
+    """This process as if the stages compiled on first need were neither compiled nor cached."""
+    loops = {name: fn for name, fn in engine._loops.items() if name not in engine.LAZY}
+    monkeypatch.setattr(engine, "_loops", loops)
+    cached = engine.cached
+    monkeypatch.setattr(engine, "cached", lambda name: name not in engine.LAZY and cached(name))
+    statuses = []
+    entry = engine.entry
+    run_exact = entry("run_exact")
+
+    def counted(*args):
+        out = run_exact(*args)
+        statuses.append(out[3])
+        return out
+
+    monkeypatch.setattr(engine, "entry", lambda name: counted if name == "run_exact" else entry(name))
+    return statuses
+
+
+@pytest.fixture
+def fresh_kernels(monkeypatch):
+    """kernel_for gives a new Kernel (no table made yet) for each call."""
+    kernel_for = loader.kernel_for
+    monkeypatch.setattr(loader, "kernel_for", lambda scene, log=None, method=None:
+                        loader.Kernel(kernel_for(scene, log, method).module))
+
+
+def test_a_held_contact_compiles_the_release_stage_mid_run_and_changes_nothing(monkeypatch, fresh_kernels):
+    scene = jackbox.load_scene("drop", {"restitution": 0.0, "ground_restitution": 0.0})
+    whole = jackbox.simulate(scene, t_end=1.5)
+    assert len(whole.held) > 0 or (whole.contact_event == 1).any()      # contacts were held: the release stage ran
+    statuses = _without_lazy_stages(monkeypatch)
+    lazy = jackbox.simulate(scene, t_end=1.5)
+    assert statuses.count(engine.MISSING) == 1 and statuses[-1] == engine.DONE
+    assert "release" in engine._loops
+    for key in ("t", "q", "qd", "energy", "impact_t", "contact_t", "contact_event"):
+        np.testing.assert_array_equal(getattr(lazy, key), getattr(whole, key), err_msg=key)
+
+
+def test_a_run_that_needs_the_fallback_compiles_it_mid_run_and_changes_nothing(monkeypatch, fresh_kernels):
+    scene = jackbox.load_scene("drop", WEIGHTLESS)
+    ens = ensemble(scene, 32, perturb={"theta_jack": 0.5}, t_end=1.0)
+    used = np.flatnonzero(ens.fallback > 0)
+    assert used.size, ens.fallback                   # (five of the 32 do)
+    whole = ens.trajectory(int(used[0]))
+    assert len(whole.fallback_t)
+    statuses = _without_lazy_stages(monkeypatch)
+    lazy = ens.trajectory(int(used[0]))
+    assert engine.MISSING in statuses and statuses[-1] == engine.DONE
+    assert {"release", "fallback"} <= set(engine._loops)
+    for key in ("t", "q", "qd", "fallback_t", "contact_t", "contact_event"):
+        np.testing.assert_array_equal(getattr(lazy, key), getattr(whole, key), err_msg=key)
+
+
+def test_an_elastic_run_needs_no_lazy_stage(monkeypatch, fresh_kernels):
+    statuses = _without_lazy_stages(monkeypatch)
+    traj = jackbox.simulate("shaken", t_end=2.0)
+    assert len(traj.impact_t) > 0 and statuses == [engine.DONE]
+    assert not set(engine.LAZY) & set(engine._loops)
+
+
+def test_the_parts_are_shared_out_by_cost(monkeypatch):
+    started = []
+
+    class Process:
+        def __init__(self, argv, **kw):
+            started.append((argv, kw["env"]))
+
+    monkeypatch.setattr(engine.subprocess, "Popen", Process)
+    monkeypatch.setattr(engine, "_loops", {})
+    monkeypatch.setattr(engine, "_helpers", {})
+    monkeypatch.setattr(engine, "cached", lambda name: False)
+    monkeypatch.setenv("JACKBOX_COMPILE_JOBS", "2")
+    names, loops = ("run_members", "set_up_members", "fill_tolerances"), ("exact",)
+    every = engine.parts(names, loops)
+    assert set(engine.LAZY) <= set(every) and "exact" in every and "update" in every
+    theirs = engine.start(names, loops, busy=6.0)
+    (argv, env), = started
+    assert argv[:3] == [sys.executable, "-m", "jackbox.engine.helper"] and argv[3:] == theirs
+    assert env["JACKBOX_COMPILE_JOBS"] == "1" and env["JACKBOX_CACHE_DIR"] == str(engine.cache.cache_dir())
+    mine = [name for name in every if name not in theirs]
+    assert mine and theirs and set(theirs) == set(engine._helpers)
+    load = 6.0 + sum(engine.COST[n] for n in mine)
+    helper = 0.5 + sum(engine.COST[n] for n in theirs)
+    assert abs(load - helper) <= max(engine.COST.values())
+    # lazily: the stages compiled on first need are nobody's part
+    monkeypatch.setattr(engine, "_helpers", {})
+    started.clear()
+    assert not set(engine.LAZY) & set(engine.start(("run_exact",), loops, lazy=True, busy=6.0))
+    # one process only: nothing started
+    monkeypatch.setattr(engine, "_helpers", {})
+    monkeypatch.setenv("JACKBOX_COMPILE_JOBS", "1")
+    started.clear()
+    assert engine.start(names, loops) == [] and started == []
+
+
+def test_the_helper_compiles_what_it_is_given_into_the_cache_it_is_given(tmp_path):
+    env = os.environ | {"JACKBOX_CACHE_DIR": str(tmp_path)}
+    env.pop("NUMBA_DISABLE_JIT", None)
+    done = subprocess.run([sys.executable, "-m", "jackbox.engine.helper", "fill_tolerances"], env=env,
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    folder = tmp_path / "engine" / engine.cache.DIGEST
+    assert any(folder.glob("tolerances.fill_tolerances-*.nbi"))
+    # that part and its callees only
+    assert {p.name.split(".")[0] for p in folder.glob("*.nbi")} == {"tolerances"}
+    done = subprocess.run([sys.executable, "-m", "jackbox.engine.helper", "fly_away"], env=env,
+                          capture_output=True, text=True)
+    assert done.returncode == 1 and "not a part of the engine: fly_away" in done.stderr
+
+
+def test_a_prepared_run_reports_compiling_through_the_api(monkeypatch):
+    # api.run_prepared names its method to kernel_for, so a helper can start before the model compiles
+    seen = []
+    kernel_for = loader.kernel_for
+    monkeypatch.setattr(loader, "kernel_for", lambda scene, log=None, method=None:
+                        seen.append(method) or kernel_for(scene, log, method))
+    api.run_prepared(api.prepare("drop", t_end=0.01, method="naive"))
+    assert seen == ["naive"]
