@@ -183,13 +183,12 @@ def binding_source(model_text: str, flight_text: str | None = None) -> str:
         + "# The free-flight hot path (jackbox/engine/flight.py), compiled with this model\n" + rule
         + flight_text + "\n\n" + rule
         + "# Binding (jackbox.loader): the model's functions as the engine's function values\n" + rule
-        + "from numba import cfunc as _cfunc, config as _config, njit as _njit\n"
-        + "from jackbox.engine import SIGNATURES as _SIGNATURES\n\n"
+        + "from numba import njit as _njit\n"
+        + "from jackbox.engine import bind as _bind\n\n"
         + "".join(f"{name} = _njit(cache=True)({name})\n" for name in tuples)
         + "".join(f"{name} = _njit(cache=True, inline=\"always\")({name})\n" for name in INLINED)
         + "\n#: what the engine calls: cfunc values (plain functions when Numba's JIT is off)\n"
-        + "COMPILED = {name: globals()[name] if _config.DISABLE_JIT else\n"
-        + "            _cfunc(sig, cache=True)(globals()[name]) for name, sig in _SIGNATURES.items()}\n"
+        + "COMPILED = _bind(globals())\n"
     )
 
 
@@ -206,11 +205,13 @@ def load_binding(model_file: Path, flight_text: str | None = None) -> ModuleType
     if path not in _verified:
         _verified.add(path)
         _check_manifest(_numba_files(path), _manifest(path), path.name)
-    name = f"jackbox_model_{_ident(model_file.stem)}_{key}"
+    name = engine.binding_name(path)
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
     cached = bool(_numba_files(path))
+    if not cached:
+        engine.start_binding(path)     # half of its functions in a helper process, the other half here
     try:
         _import(spec, module)
     except Exception as exc:       # a damaged cache entry that slipped past the manifest

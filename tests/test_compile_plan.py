@@ -168,3 +168,25 @@ def test_a_prepared_run_reports_compiling_through_the_api(monkeypatch):
                         seen.append(method) or kernel_for(scene, log, method))
     api.run_prepared(api.prepare("drop", t_end=0.01, method="naive"))
     assert seen == ["naive"]
+
+
+def test_a_new_model_compiles_half_of_its_functions_in_a_helper(tmp_path, monkeypatch):
+    from .conftest import write_scene
+    from .test_cache import drop_of_its_own
+
+    monkeypatch.setenv("JACKBOX_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("JACKBOX_COMPILE_JOBS", "2")
+    monkeypatch.setattr(loader, "_loaded", {})
+    monkeypatch.setattr(loader, "_stamped", {})
+    monkeypatch.setattr(engine, "_helpers", {})
+    scene = jackbox.load_scene(write_scene(tmp_path, drop_of_its_own()))
+    kernel = loader.kernel_for(scene)
+    compiled = kernel.module.COMPILED
+    assert list(compiled) == list(engine.SIGNATURES)
+    # the helper's share was loaded from the cache it wrote; the rest was compiled here
+    assert all(compiled[name].cache_hits for name in engine.HELPER_SHARE)
+    assert not any(compiled[name].cache_hits for name in engine.SIGNATURES if name not in engine.HELPER_SHARE)
+    assert not engine._binders
+    # the same numbers as the committed drop (push = 0): the functions work, whoever compiled them
+    run = jackbox.simulate(scene, t_end=0.3)
+    np.testing.assert_array_equal(run.q, jackbox.simulate("drop", t_end=0.3).q)

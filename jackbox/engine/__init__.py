@@ -32,6 +32,7 @@ import os
 import subprocess
 import sys
 import warnings
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -82,7 +83,7 @@ _loops: dict = {}
 
 __all__ = ["DONE", "IMPACT_LOG_FULL", "MISSING", "NONFINITE", "STALLED", "IMPULSE", "REST", "RELEASE", "FALLBACK", "WARNING",
            "WARN_LCP", "WARN_LOCATE", "MAX_EVENTS", "MODE_SLOTS", "T_GAP", "T_EVENT", "T_VREST", "T_AREST", "T_BOXV", "T_WALL", "T_RJACK", "T_RBOX", "T_SPEED",
-           "Model", "Samples", "Events", "Setup", "SIGNATURES", "SIZES", "ENTRIES", "LOOPS", "LAZY", "entry", "compiled_loop", "prepare", "start", "table"]
+           "Model", "Samples", "Events", "Setup", "SIGNATURES", "SIZES", "ENTRIES", "LOOPS", "LAZY", "entry", "compiled_loop", "prepare", "start", "start_binding", "bind", "binding_name", "table"]
 
 
 def _dispatcher(name: str):
@@ -205,16 +206,76 @@ def start(names, loops=(), lazy: bool = False, busy: float = 0.0) -> list[str]:
             load += COST.get(name, 1.0)
     if not theirs:
         return []
-    env = os.environ | {"JACKBOX_CACHE_DIR": str(cache.cache_dir()), "JACKBOX_COMPILE_JOBS": "1"}
-    env.pop("NUMBA_DISABLE_JIT", None)
-    try:
-        process = subprocess.Popen([sys.executable, "-m", f"{__name__}.helper", *theirs], env=env,
-                                   stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    except OSError:
+    process = _spawn(theirs)
+    if process is None:
         return []
     for name in theirs:
         _helpers[name] = process
     return theirs
+
+
+#: (in a helper process) the model functions a binding module compiles, None: all of them
+BIND_ONLY: set | None = None
+#: a binding module's file -> (the helper process compiling some of its functions, their names)
+_binders: dict = {}
+#: the model functions a helper compiles for a binding (start_binding): the free-flight hot path, which
+#: shares its inlined helpers (the model's tuple functions, RK4), and the energy: about half the work
+HELPER_SHARE = ("free_step", "fly", "clearance", "energy")
+
+
+def bind(namespace: dict) -> dict:
+    """A model's functions as the engine's function values: ``cfunc`` of SIGNATURES, compiled or loaded.
+
+    Called by a binding module (:mod:`jackbox.loader`) at its import, with its
+    globals. Functions a helper process is compiling (:func:`start_binding`)
+    come last: loaded from the cache once it is done, compiled here if it
+    failed. Plain functions when Numba's JIT is off.
+    """
+    names = [name for name in SIGNATURES if BIND_ONLY is None or name in BIND_ONLY]
+    if numba.config.DISABLE_JIT:
+        return {name: namespace[name] for name in names}
+    helper, theirs = _binders.pop(str(Path(namespace["__file__"]).resolve()), (None, ()))
+    out = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
+        for name in sorted(names, key=lambda name: name in theirs):
+            if name in theirs and helper is not None:
+                helper.wait()
+                helper = None
+            out[name] = numba.cfunc(SIGNATURES[name], cache=True)(namespace[name])
+    return {name: out[name] for name in names}
+
+
+def binding_name(path) -> str:
+    """The module name of the binding module at ``path`` (the same in every process that imports it)."""
+    return "jackbox_model_" + Path(path).stem
+
+
+def start_binding(path: Path) -> list[str]:
+    """Hand HELPER_SHARE of the binding module at ``path`` to a helper process, before importing it here.
+
+    Only when no helper is compiling engine parts (two cores, two processes).
+    Returns the functions handed out.
+    """
+    if numba.config.DISABLE_JIT or _jobs() < 2 or _helpers:
+        return []
+    path = Path(path).resolve()
+    process = _spawn(["--binding", str(path), *HELPER_SHARE])
+    if process is None:
+        return []
+    _binders[str(path)] = (process, HELPER_SHARE)
+    return list(HELPER_SHARE)
+
+
+def _spawn(args: list[str]):
+    """A helper process (``python -m jackbox.engine.helper ARGS``) on this process's cache folder, or None."""
+    env = os.environ | {"JACKBOX_CACHE_DIR": str(cache.cache_dir()), "JACKBOX_COMPILE_JOBS": "1"}
+    env.pop("NUMBA_DISABLE_JIT", None)
+    try:
+        return subprocess.Popen([sys.executable, "-m", f"{__name__}.helper", *args], env=env,
+                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    except OSError:
+        return None
 
 
 def _jobs() -> int:
