@@ -253,7 +253,9 @@ def _parser() -> argparse.ArgumentParser:
         description="Generated models and compiled kernels are cached in $JACKBOX_CACHE_DIR, else "
                     "$XDG_CACHE_HOME/jackbox, else ~/.cache/jackbox. A damaged entry is found (by "
                     "checksum, or when it fails to load), removed and rebuilt with one warning; an "
-                    "unwritable folder is avoided (compiled code is then kept for the process only).")
+                    "unwritable folder is avoided (compiled code is then kept for the process only). "
+                    "What is not cached compiles in two processes where there are two cores "
+                    "(JACKBOX_COMPILE_JOBS=1: one).")
     cache.add_argument("action", nargs="?", choices=("info", "clear"), default="info",
                        help="info (default): the folder, its files and size; clear: empty it")
     cache.set_defaults(func=cmd_cache)

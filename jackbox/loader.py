@@ -438,10 +438,7 @@ def is_cached(kernel: Kernel, method: str) -> bool:
     fn = engine._dispatcher(ENTRY[method][0])
     if getattr(fn, "signatures", None) and LOOP[method] in engine._loops:
         return True
-    folder = engine.cache.engine_cache_path()
-    loop_fn = engine.LOOPS[LOOP[method]][0]
-    return folder is not None and all(any(folder.glob(f"*.{name}-*.nbi"))
-                                      for name in (ENTRY[method][0], loop_fn))
+    return engine.cached(ENTRY[method][0]) and engine.cached(LOOP[method])
 
 
 def _numba_files(path: Path) -> list[Path]:

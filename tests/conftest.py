@@ -13,7 +13,7 @@ import jackbox
 
 BUILTINS = ("shaken", "spring", "drop")
 
-_saved_cache_env: list[str | None] = []
+_saved_env: list[dict[str, str | None]] = []
 
 
 def pytest_configure(config):
@@ -23,22 +23,28 @@ def pytest_configure(config):
     (``.pytest_cache/d/jackbox``: kept between runs, so a second run is warm;
     ``pytest --cache-clear`` starts from an empty one), else a temporary folder.
     Subprocesses (the CLI, Dask workers) inherit it through the environment.
+    Under pytest-xdist the workers fill the cores already: compiling stays in
+    one process per worker (``JACKBOX_COMPILE_JOBS=1``) unless the environment
+    says otherwise.
     """
     folder = os.environ.get("JACKBOX_TEST_CACHE_DIR")
     if not folder:
         cache = getattr(config, "cache", None)
         folder = str(cache.mkdir("jackbox")) if cache is not None else tempfile.mkdtemp(prefix="jackbox-tests-")
-    _saved_cache_env.append(os.environ.get("JACKBOX_CACHE_DIR"))
-    os.environ["JACKBOX_CACHE_DIR"] = folder
+    wanted = {"JACKBOX_CACHE_DIR": folder}
+    if os.environ.get("PYTEST_XDIST_WORKER") and "JACKBOX_COMPILE_JOBS" not in os.environ:
+        wanted["JACKBOX_COMPILE_JOBS"] = "1"
+    _saved_env.append({name: os.environ.get(name) for name in wanted})
+    os.environ.update(wanted)
 
 
 def pytest_unconfigure(config):
-    if _saved_cache_env:
-        saved = _saved_cache_env.pop()
-        if saved is None:
-            os.environ.pop("JACKBOX_CACHE_DIR", None)
-        else:
-            os.environ["JACKBOX_CACHE_DIR"] = saved
+    if _saved_env:
+        for name, saved in _saved_env.pop().items():
+            if saved is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = saved
 
 #: A box shaken up and down by a hand (prescribed motion), a polygon jack inside.
 PRESCRIBED = """

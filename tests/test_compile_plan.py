@@ -190,3 +190,13 @@ def test_a_new_model_compiles_half_of_its_functions_in_a_helper(tmp_path, monkey
     # the same numbers as the committed drop (push = 0): the functions work, whoever compiled them
     run = jackbox.simulate(scene, t_end=0.3)
     np.testing.assert_array_equal(run.q, jackbox.simulate("drop", t_end=0.3).q)
+
+
+def test_is_cached_finds_the_loop_and_the_entry_point_in_the_cache(monkeypatch):
+    kernel = loader.kernel_for(jackbox.load_scene("drop"))
+    loader.compile_kernel(kernel, "exact")
+    assert loader.is_cached(kernel, "exact")
+    monkeypatch.setattr(engine, "_loops", {})            # not in this process: the cache's files decide
+    assert loader.is_cached(kernel, "exact")
+    monkeypatch.setattr(engine, "cached", lambda name: name != "exact")
+    assert not loader.is_cached(kernel, "exact")

@@ -1,0 +1,79 @@
+"""Where the compile seconds go: each part of the engine, and a model's functions, from an empty cache.
+
+    python benchmarks/compile_parts.py [--scene shaken] [--out benchmarks/results]
+
+One new process with a cache folder of its own and one compiling process
+(``JACKBOX_COMPILE_JOBS=1``) compiles, in this order, the scene's model
+functions, every loop and stage of the engine and every entry point, and
+times each (a part compiled later reuses what earlier ones compiled of their
+shared callees: the order matters, the sum does not). Writes
+``compile_parts.md`` and ``.json``. These are the costs ``jackbox.engine.COST``
+shares out between two processes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+CHILD = r"""
+import json, sys, time, warnings
+t0 = time.perf_counter()
+from jackbox import engine, loader
+from jackbox.scene import load_scene
+out = {"import": time.perf_counter() - t0}
+t = time.perf_counter()
+loader.kernel_for(load_scene(sys.argv[1]))
+out["model functions"] = time.perf_counter() - t
+for name in engine.LOOPS:
+    t = time.perf_counter()
+    engine.prepare((), (name,))
+    out[name] = time.perf_counter() - t
+for name in engine.ENTRIES:
+    t = time.perf_counter()
+    engine.prepare((name,))
+    out[name] = time.perf_counter() - t
+print(json.dumps(out))
+"""
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scene", default="shaken")
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
+    args = parser.parse_args(argv)
+    sys.path.insert(0, str(ROOT))
+    from jackbox.fileio import write_atomic
+
+    with tempfile.TemporaryDirectory(prefix="jackbox-parts-") as cache:
+        env = os.environ | {"JACKBOX_CACHE_DIR": cache, "JACKBOX_COMPILE_JOBS": "1", "JACKBOX_PROGRESS": "0"}
+        env.pop("NUMBA_DISABLE_JIT", None)
+        done = subprocess.run([sys.executable, "-c", CHILD, args.scene], env=env, capture_output=True, text=True,
+                              cwd=ROOT)
+    if done.returncode != 0:
+        print(done.stderr, file=sys.stderr)
+        return 1
+    seconds = json.loads(done.stdout.strip().splitlines()[-1])
+    lines = ["# Compile time by part", "",
+             f"Measured by `python benchmarks/compile_parts.py --scene {args.scene}`: one new process, an empty "
+             f"cache, one compiling process, the parts in this order (later parts reuse what earlier ones compiled "
+             f"of shared callees).", "", "| part | seconds |", "| --- | --- |"]
+    lines += [f"| {name} | {s:.2f} |" for name, s in seconds.items()]
+    lines += [f"| total | {sum(seconds.values()):.2f} |", ""]
+    text = "\n".join(lines)
+    print(text)
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_atomic(args.out / "compile_parts.md", text)
+    write_atomic(args.out / "compile_parts.json", json.dumps({"scene": args.scene, "seconds": seconds}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
