@@ -31,11 +31,11 @@ from numba import njit
 
 from .impact import resolve_impacts
 from .modes import log_event, project_rest, rest_index
-from .records import (DONE, FALLBACK, FLAGS, GA, GB, HANDOFF, IMPACT_LOG_FULL, MAX_EVENTS, MISSING, MODE_AT,
-                      MODE_BUDGET, NEED_FALLBACK, NEED_RELEASE,
-                      MODE_SLOTS, NONFINITE, ZENO_PASSES, ZENO_SPAN, Q0, QB, QD0, QDB, QDS, QS, RELEASE, RIDX, SET_AT, T_EVENT,
-                      WARN_LCP, WARN_LOCATE, WARNING, EXACT_AT, MODEL_AT, NAIVE_AT, STAGES_AT, ExactType, ModelType,
-                      NaiveType, StagesType, Events, Samples, borrow, from_table, keep, scratch)
+from .records import (DONE, EXACT_AT, FALLBACK, FLAGS, GA, GB, HANDOFF, IMPACT_LOG_FULL, MAX_EVENTS, MISSING, MODE_AT,
+                      MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT, NEED_FALLBACK, NEED_RELEASE, NONFINITE, Q0, QB, QD0,
+                      QDB, QDS, QS, RELEASE, RIDX, SET_AT, STAGES_AT, T_EVENT, WARN_LCP, WARN_LOCATE, WARNING,
+                      ZENO_PASSES, ZENO_SPAN, Events, ExactType, ModelType, NaiveType, Samples, StagesType, borrow,
+                      from_table, keep, scratch)
 from .gaps import step_reach
 
 
