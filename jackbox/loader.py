@@ -123,7 +123,14 @@ def ensure_model(scene: Scene, log=None) -> Path:
     if not current or not intact(path):
         if current:
             _warn(f"{path} was damaged (its seal does not match its text): generating it again")
-        result = build_model(scene, path)
+        try:
+            result = build_model(scene, path)
+        except OSError as exc:         # a full disk: go on in a folder of this process
+            if not path.is_relative_to(cache_dir()):
+                raise
+            engine.cache.set_aside(exc)
+            path = model_path(scene)
+            result = build_model(scene, path)
         _intact.clear()
         if log:
             log(f"generated {path} ({sum(result.seconds.values()):.2f} s)")
@@ -144,6 +151,7 @@ def build_model(scene: Scene, path: Path) -> BuildResult:
     changed = not path.exists() or path.read_bytes() != text.encode("utf-8")
     if changed:
         write_atomic(path, text)
+        engine.cache.kept_for_now(f"the model {path.name}")
     return BuildResult(path, text, changed, seconds)
 
 
@@ -201,7 +209,11 @@ def load_binding(model_file: Path, flight_text: str | None = None) -> ModuleType
     # committed models are <name>.py, cached ones <model hash>.py
     path = cache_dir() / "kernels" / f"{_ident(model_file.stem)}_{key}.py"
     if not path.exists() or path.read_text() != text:
-        write_atomic(path, text)
+        try:
+            write_atomic(path, text)
+        except OSError as exc:         # a full disk: go on in a folder of this process
+            path = engine.cache.set_aside(exc) / "kernels" / path.name
+            write_atomic(path, text)
     if path not in _verified:
         _verified.add(path)
         _check_manifest(_numba_files(path), _manifest(path), path.name)
@@ -226,6 +238,7 @@ def load_binding(model_file: Path, flight_text: str | None = None) -> ModuleType
         module.CACHE = "hit" if all(fn.cache_hits for fn in module.COMPILED.values()) else "miss"
         if module.CACHE == "miss":
             _write_manifest(_numba_files(path), _manifest(path))
+            engine.cache.kept_for_now(f"the model's functions ({path.name})")
     _loaded[key] = module
     return module
 
@@ -298,7 +311,8 @@ class Kernel:
             if status != engine.MISSING:
                 return i, n_rec, n_ev, status
             # a step needs a stage compiled on first need: compile it, then go on from that step
-            engine.prepare((), ("exact",))
+            if engine.prepare((), ("exact",)) == "miss":
+                engine.cache.kept_for_now("a stage of the engine")
             self._tables.pop((("exact",), True), None)
             i_begin = i
 
@@ -417,6 +431,7 @@ def compile_kernel(kernel: Kernel, method: str | None = None) -> dict:
         result = engine.prepare(names, loops, lazy=method == "exact")
     if result == "miss" and folder is not None:
         _write_manifest(engine.cache.files(), folder / "sums.json")
+        engine.cache.kept_for_now(f"the engine ({', '.join(names)})")
     # compiled now if either part was; loaded if either was loaded; else ready in memory
     both = {model, result}
     cache = "miss" if "miss" in both else "hit" if "hit" in both else "memory"

@@ -9,11 +9,15 @@ own files get the same manifest check (loader.compile_kernel).
 
 from __future__ import annotations
 
+import errno
+import os
 import shutil
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
+from numba.core.caching import IndexDataCacheFile
 
 import jackbox
 from jackbox import engine, loader
@@ -120,6 +124,84 @@ def test_an_unwritable_cache_folder_is_avoided_with_one_warning(tmp_path, monkey
     assert len(cache_warnings(record)) == 1
     assert traj.t[-1] == 0.3 and np.all(np.isfinite(traj.q))
     assert not (blocker / "cache").exists()
+
+
+def _files_of(folder):
+    """Every file under `folder` with its inode, size and modification time."""
+    return {str(f): (f.stat().st_ino, f.stat().st_size, f.stat().st_mtime_ns)
+            for f in sorted(folder.rglob("*")) if f.is_file()}
+
+
+@pytest.fixture
+def read_only_warm_cache(fresh_cache, monkeypatch):
+    """A warm cache made read-only: by its permissions, and, for root (whom they do not
+    stop), by the one check jackbox makes of whether it may write there."""
+    run()
+    (fresh_cache / "kernels" / "__pycache__" / "scratch.tmp").write_text("")   # a stray file: not linked
+    before = _files_of(fresh_cache)
+    for f in [fresh_cache, *fresh_cache.rglob("*")]:
+        f.chmod(f.stat().st_mode & ~0o222)
+    can_write = engine.cache._can_write
+    monkeypatch.setattr(engine.cache, "_can_write", lambda folder: folder != fresh_cache and can_write(folder))
+    _forget(monkeypatch)
+    yield fresh_cache, before
+    for f in [fresh_cache, *fresh_cache.rglob("*")]:
+        f.chmod(f.stat().st_mode | 0o200)
+
+
+def test_a_read_only_warm_cache_is_read_in_place_without_a_word(read_only_warm_cache):
+    folder, before = read_only_warm_cache
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        traj = run()
+    assert cache_warnings(record) == []
+    assert traj.meta["kernel"]["cache"] == "hit", "nothing compiled: the cached code was read where it is"
+    assert _files_of(folder) == before, "the read-only folder is untouched"
+    used = engine.cache.cache_dir()
+    assert used != folder and not (used / "engine" / "scratch.tmp").exists()
+
+
+def test_code_compiled_beside_a_read_only_cache_is_kept_aside_with_one_warning(read_only_warm_cache, tmp_path):
+    folder, before = read_only_warm_cache
+    scene = jackbox.load_scene(write_scene(tmp_path, drop_of_its_own()))
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        traj = run(scene)
+        run(scene)
+    said = cache_warnings(record)
+    assert len(said) == 1 and "read-only" in said[0] and str(folder) in said[0], said
+    assert traj.meta["kernel"]["cache"] == "miss" and np.all(np.isfinite(traj.q))
+    assert _files_of(folder) == before
+
+
+def test_a_full_disk_keeps_the_compiled_code_for_the_process_with_one_warning(fresh_cache, tmp_path, monkeypatch):
+    """Nothing more fits on the cache's disk: the binding module goes to a folder of this
+    process, Numba's failed saves keep the machine code in memory, the run succeeds."""
+    monkeypatch.setenv("JACKBOX_COMPILE_JOBS", "1")
+    monkeypatch.setattr(engine.cache, "_said", set())
+    scene = jackbox.load_scene(write_scene(tmp_path, drop_of_its_own()))
+    fresh_cache.mkdir()
+
+    def no_space(write, everywhere):
+        def full(self_or_path, *args):
+            path = Path(args[0] if everywhere else self_or_path)
+            if everywhere or path.resolve().is_relative_to(fresh_cache.resolve()):
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+            return write(self_or_path, *args)
+        return full
+
+    monkeypatch.setattr(loader, "write_atomic", no_space(loader.write_atomic, everywhere=False))
+    monkeypatch.setattr(IndexDataCacheFile, "_open_for_write", no_space(IndexDataCacheFile._open_for_write, True))
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        traj = run(scene)
+        run(scene)
+    said = cache_warnings(record)
+    assert len(said) == 1 and "No space left on device" in said[0], said
+    assert traj.meta["kernel"]["cache"] == "miss"
+    assert list(fresh_cache.rglob("*.*")) == []
+    monkeypatch.undo()
+    np.testing.assert_allclose(traj.q, run().q, rtol=0, atol=1e-12)
 
 
 def test_cache_command_shows_and_clears_the_folder(fresh_cache, capsys):

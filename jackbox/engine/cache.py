@@ -19,14 +19,16 @@ own ``__pycache__`` beside the source, keyed by that one file's time stamp
 
 from __future__ import annotations
 
+import atexit
 import hashlib
 import os
+import shutil
 import tempfile
 import warnings
 from pathlib import Path
 
 import numba
-from numba.core.caching import CacheImpl, _CacheLocator
+from numba.core.caching import Cache, CacheImpl, _CacheLocator
 
 from ..errors import CacheWarning
 
@@ -48,18 +50,115 @@ def configured_cache_dir() -> Path:
 
 
 def cache_dir() -> Path:
-    """The cache folder: the configured one, or, where nothing can be written there, a
-    temporary folder for this process (compiled code is then not kept; one warning)."""
+    """The cache folder: the configured one where it can be written, else a folder for this process.
+
+    A read-only folder that exists (a shared install, a read-only mount) is
+    read as it is: the process works in a temporary folder that links every
+    file of the read-only one that this engine can use (:func:`_overlay`), so
+    cached code loads from there and what is compiled now goes to the
+    temporary folder (one warning when that happens, :func:`kept_for_now`).
+    Where the folder cannot even be made, the temporary folder starts empty
+    (one warning now). Either is removed when the process ends.
+    """
     folder = configured_cache_dir()
     key = str(folder)
     if key not in _folders:
         _folders[key] = folder
         if not _can_write(folder):
-            _folders[key] = Path(tempfile.mkdtemp(prefix="jackbox-cache-"))
-            warnings.warn(f"the cache folder {folder} cannot be written: compiling into {_folders[key]} "
-                          f"for this process only (set JACKBOX_CACHE_DIR to a writable folder to keep it)",
-                          CacheWarning, stacklevel=3)
+            scratch = Path(tempfile.mkdtemp(prefix="jackbox-cache-"))
+            atexit.register(shutil.rmtree, scratch, ignore_errors=True)
+            _folders[key] = scratch
+            if folder.is_dir():
+                _overlay(folder, scratch)
+                _read_only[str(scratch)] = folder
+            else:
+                warnings.warn(f"the cache folder {folder} cannot be written: compiling into {scratch} "
+                              f"for this process only (set JACKBOX_CACHE_DIR to a writable folder to keep it)",
+                              CacheWarning, stacklevel=3)
     return _folders[key]
+
+
+#: temporary folder -> the read-only cache folder it links (see cache_dir)
+_read_only: dict[str, Path] = {}
+
+
+def _overlay(source: Path, target: Path) -> None:
+    """Link into `target` the files of `source` that this engine and its models can use.
+
+    Only the folders jackbox reads are linked (generated models, binding
+    modules and their machine code, this engine version's machine code), file
+    by file, so that a file written later (Numba writes a new file and renames
+    it over the old) replaces the link in `target` and never touches `source`.
+    """
+    for sub in ("models", "kernels", "kernels/__pycache__", f"engine/{DIGEST}"):
+        there = source / sub
+        if not there.is_dir():
+            continue
+        here = target / sub
+        here.mkdir(parents=True, exist_ok=True)
+        for f in there.iterdir():
+            if f.is_file():
+                (here / f.name).symlink_to(f)
+
+
+def kept_for_now(what: str) -> None:
+    """Say (once per process) that code compiled now is not kept, when the cache is read-only."""
+    folder = cache_dir()
+    source = _read_only.pop(str(folder), None)
+    if source is not None:
+        warnings.warn(f"the cache folder {source} is read-only: {what}, made now, is kept in {folder} "
+                      f"for this process only (set JACKBOX_CACHE_DIR to a writable folder to keep it)",
+                      CacheWarning, stacklevel=3)
+
+
+def set_aside(exc: OSError) -> Path:
+    """Go on in a temporary folder after writing into the cache failed (a full disk, say); one warning.
+
+    The temporary folder links what the cache holds (as for a read-only
+    folder), so what was cached stays in use; it is removed when the process
+    ends. Returns the new cache folder.
+    """
+    folder = configured_cache_dir()
+    current = cache_dir()
+    scratch = Path(tempfile.mkdtemp(prefix="jackbox-cache-"))
+    atexit.register(shutil.rmtree, scratch, ignore_errors=True)
+    _overlay(current, scratch)
+    _folders[str(folder)] = scratch
+    _read_only.pop(str(current), None)
+    _unsaved(exc, current)
+    return scratch
+
+
+_said: set[str] = set()
+
+
+def _unsaved(exc: OSError, where) -> None:
+    """The one warning of a process whose compiled code cannot be written into the cache."""
+    if "unsaved" not in _said:
+        _said.add("unsaved")
+        warnings.warn(f"cannot write into the cache folder {where} ({exc.strerror or exc}): compiled code "
+                      f"is kept for this process only", CacheWarning, stacklevel=4)
+
+
+def _ours(path) -> bool:
+    """Whether `path` is in a jackbox cache folder (configured, temporary or the engine's own)."""
+    path = Path(path).resolve()
+    folders = {Path(key) for key in _folders} | set(_folders.values())
+    return (path.name.startswith("jackbox-engine-")
+            or any(path.is_relative_to(folder.resolve()) for folder in folders))
+
+
+def _save_or_keep(save):
+    """Numba's save_overload for jackbox's cache: a failed write (a full disk) keeps the code in memory."""
+    def save_overload(self, sig, data):
+        try:
+            save(self, sig, data)
+        except OSError as exc:
+            if not _ours(self._cache_path):
+                raise
+            _unsaved(exc, self._cache_path)
+    save_overload.jackbox = True
+    return save_overload
 
 
 def _can_write(folder: Path) -> bool:
@@ -119,9 +218,11 @@ class EngineLocator(_CacheLocator):
 
 
 def install() -> None:
-    """Put the engine's locator first in Numba's list (once)."""
+    """Put the engine's locator first in Numba's list, and guard saving into jackbox's cache (once)."""
     if EngineLocator not in CacheImpl._locator_classes:
         CacheImpl._locator_classes.insert(0, EngineLocator)
+    if not getattr(Cache.save_overload, "jackbox", False):
+        Cache.save_overload = _save_or_keep(Cache.save_overload)
 
 
 def files() -> list[Path]:
