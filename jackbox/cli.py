@@ -15,6 +15,7 @@ import math
 import os
 import signal
 import sys
+import tempfile
 import threading
 import time
 import warnings
@@ -252,8 +253,9 @@ def _parser() -> argparse.ArgumentParser:
         "cache", help="show where compiled code is cached and its size, or clear it",
         description="Generated models and compiled kernels are cached in $JACKBOX_CACHE_DIR, else "
                     "$XDG_CACHE_HOME/jackbox, else ~/.cache/jackbox. A damaged entry is found (by "
-                    "checksum, or when it fails to load), removed and rebuilt with one warning; an "
-                    "unwritable folder is avoided (compiled code is then kept for the process only). "
+                    "checksum, or when it fails to load), removed and rebuilt with one warning; a "
+                    "read-only folder is read where it is, and what must be compiled then (or when the "
+                    "disk is full) is kept for the process only, with one warning. "
                     "What is not cached compiles in two processes where there are two cores "
                     "(JACKBOX_COMPILE_JOBS=1: one).")
     cache.add_argument("action", nargs="?", choices=("info", "clear"), default="info",
@@ -348,8 +350,6 @@ def _study_status(completed) -> int:
 
 
 def _cores() -> int:
-    import os
-
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
@@ -450,8 +450,10 @@ def _check_writable(path: Path) -> None:
         existing = existing.parent
     if not existing.is_dir():
         raise JackboxError(f"--out {path}: {existing} is a file, not a folder")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise JackboxError(f"--out {path}: {existing} cannot be written")
+    try:     # (a permission check alone says yes to root on a read-only mount or in /proc)
+        tempfile.TemporaryFile(dir=existing).close()
+    except OSError as exc:
+        raise JackboxError(f"--out {path}: {existing} cannot be written ({exc.strerror or exc})") from None
 
 
 def _out_file(out: Path | None, source: Path, run_name: str, suffix: str) -> Path:

@@ -57,6 +57,16 @@ def test_an_out_that_cannot_be_written_is_refused_before_any_work(tmp_path, caps
     assert line == f"jackbox: error: --out {blocker / 'out'}: {blocker} is a file, not a folder"
 
 
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux's /proc")
+def test_an_out_where_nothing_can_be_made_is_refused_even_for_root(capsys, monkeypatch):
+    """/proc: its permission bits let root write, yet no file can be made there."""
+    monkeypatch.setattr(jackbox.loader, "kernel_for", _no_work)
+    status, out, err = run_cli(capsys, "run", "drop", "--no-plots", "--t-end", "0.05", "--out", "/proc/jackbox/out")
+    assert status == 2 and out == ""
+    (line,) = err.strip().splitlines()
+    assert line.startswith("jackbox: error: --out /proc/jackbox/out: /proc cannot be written")
+
+
 def test_progress_bars_only_on_a_terminal_unless_asked(monkeypatch):
     monkeypatch.delenv("JACKBOX_PROGRESS", raising=False)
     monkeypatch.setattr(sys, "stderr", io.StringIO())          # a log file, not a terminal
