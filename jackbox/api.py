@@ -208,7 +208,7 @@ def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
             if exact:
                 i_new, n_rec, n_ev, status = kernel.integrate_exact(
                     q, qd, rest, run.p, tol, 0.0, run.dt, i, i_end, run.n_steps, run.record_every,
-                    rec_t, rec_q, rec_qd, rec_e, n_rec, ev_t, ev_k, ev_kind, n_ev)
+                    rec_t, rec_q, rec_qd, rec_e, n_rec, ev_t, ev_k, ev_kind, n_ev, log=log)
             else:
                 i_new, n_rec, n_ev, status = kernel.integrate(
                     q, qd, run.p, 0.0, run.dt, i, i_end, run.n_steps, run.record_every,

@@ -303,7 +303,7 @@ class Kernel:
         return self._tables[key]
 
     def integrate_exact(self, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every,
-                        rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, ev_kind, n_ev):
+                        rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, ev_kind, n_ev, log=None):
         while True:
             i, n_rec, n_ev, status = engine.entry("run_exact")(
                 self.table(), q, qd, rest, p, tol, float(t0), float(dt), i_begin, i_end, n_total, record_every,
@@ -311,6 +311,9 @@ class Kernel:
             if status != engine.MISSING:
                 return i, n_rec, n_ev, status
             # a step needs a stage compiled on first need: compile it, then go on from that step
+            if log and not all(engine.ready(name) for name in engine.LAZY):
+                log(f"compiling the engine's {' and '.join(engine.LAZY)} stages for held contacts "
+                    f"at t = {t0 + i * dt:g} s (first use only) ...")
             if engine.prepare((), ("exact",)) == "miss":
                 engine.cache.kept_for_now("a stage of the engine")
             self._tables.pop((("exact",), True), None)
@@ -368,8 +371,12 @@ def kernel_for(scene: Scene, log=None, method: str | None = None) -> Kernel:
     known: the engine's parts it needs that are not cached start compiling in
     a helper process now, while the model's functions compile here.
     """
+    if not model_path(scene).exists():
+        engine.warm_binder()          # a new structure: the helper starts while its model is generated
     path = ensure_model(scene, log)
     bound = numba.config.DISABLE_JIT or _bound(path)
+    if bound:
+        engine.cool_binder()
     if method is not None:
         engine.start(ENTRY[method], (LOOP[method],), lazy=method == "exact", busy=0.0 if bound else MODEL_COST)
     if log and not bound:

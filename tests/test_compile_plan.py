@@ -81,8 +81,12 @@ def test_a_held_contact_compiles_the_release_stage_mid_run_and_changes_nothing(m
     whole = jackbox.simulate(scene, t_end=1.5)
     assert len(whole.held) > 0 or (whole.contact_event == 1).any()      # contacts were held: the release stage ran
     statuses = _without_lazy_stages(monkeypatch)
-    lazy = jackbox.simulate(scene, t_end=1.5)
+    said = []
+    lazy = jackbox.simulate(scene, t_end=1.5, log=said.append)
     assert statuses.count(engine.MISSING) == 1 and statuses[-1] == engine.DONE
+    # the pause is explained, once
+    (line,) = [line for line in said if "stages" in line]
+    assert "for held contacts at t = " in line and "first use only" in line
     assert "release" in engine._loops
     for key in ("t", "q", "qd", "energy", "impact_t", "contact_t", "contact_event"):
         np.testing.assert_array_equal(getattr(lazy, key), getattr(whole, key), err_msg=key)
@@ -180,16 +184,36 @@ def test_a_new_model_compiles_half_of_its_functions_in_a_helper(tmp_path, monkey
     monkeypatch.setattr(loader, "_stamped", {})
     monkeypatch.setattr(engine, "_helpers", {})
     scene = jackbox.load_scene(write_scene(tmp_path, drop_of_its_own()))
+    started = []
+    spawn = engine._spawn
+    monkeypatch.setattr(engine, "_spawn", lambda args, **kw: started.append(args) or spawn(args, **kw))
     kernel = loader.kernel_for(scene)
     compiled = kernel.module.COMPILED
     assert list(compiled) == list(engine.SIGNATURES)
+    # a new structure: the helper started before its model was generated, and took one function more
+    assert started == [["--binding", "-", *engine.WARM_SHARE]] and engine._warm is None
     # the helper's share was loaded from the cache it wrote; the rest was compiled here
-    assert all(compiled[name].cache_hits for name in engine.HELPER_SHARE)
-    assert not any(compiled[name].cache_hits for name in engine.SIGNATURES if name not in engine.HELPER_SHARE)
+    assert all(compiled[name].cache_hits for name in engine.WARM_SHARE)
+    assert not any(compiled[name].cache_hits for name in engine.SIGNATURES if name not in engine.WARM_SHARE)
     assert not engine._binders
     # the same numbers as the committed drop (push = 0): the functions work, whoever compiled them
     run = jackbox.simulate(scene, t_end=0.3)
     np.testing.assert_array_equal(run.q, jackbox.simulate("drop", t_end=0.3).q)
+
+
+def test_a_warm_helper_with_no_work_ends_when_let_go(tmp_path, monkeypatch):
+    monkeypatch.setenv("JACKBOX_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("JACKBOX_COMPILE_JOBS", "2")
+    monkeypatch.setattr(engine, "_helpers", {})
+    monkeypatch.setattr(engine, "_warm", None)
+    assert engine.warm_binder() and engine.warm_binder()      # one helper, however often asked
+    process = engine._warm
+    engine.cool_binder()
+    assert engine._warm is None and process.wait(timeout=60) == 0
+    assert not any(tmp_path.rglob("*.nb[ic]")), "it compiled nothing into the cache"
+    # and one process only: none is started
+    monkeypatch.setenv("JACKBOX_COMPILE_JOBS", "1")
+    assert not engine.warm_binder() and engine._warm is None
 
 
 def test_is_cached_finds_the_loop_and_the_entry_point_in_the_cache(monkeypatch):
