@@ -189,8 +189,8 @@ class _Budgeted:
     def __getattr__(self, name):
         return getattr(self._module, name)
 
-    def integrate_exact(self, *args):
-        i, n_rec, n_ev, status = self._module.integrate_exact(*args)
+    def integrate_exact(self, *args, log=None):
+        i, n_rec, n_ev, status = self._module.integrate_exact(*args, log=log)
         if status == self._module.IMPACT_LOG_FULL:
             a = inspect.signature(self._module.integrate_exact).bind(*args).arguments
             raise OverBudget(len(a["ev_t"]), n_ev, i, a["t0"] + i * a["dt"])
