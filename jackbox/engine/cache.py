@@ -214,6 +214,7 @@ class EngineLocator(_CacheLocator):
             self.ensure_cache_path()
         except OSError:          # (the folder was writable a moment ago): this process only
             self._path = Path(tempfile.mkdtemp(prefix="jackbox-engine-"))
+            atexit.register(shutil.rmtree, self._path, ignore_errors=True)
         return self
 
 
