@@ -65,8 +65,7 @@ def cache_dir() -> Path:
     if key not in _folders:
         _folders[key] = folder
         if not _can_write(folder):
-            scratch = Path(tempfile.mkdtemp(prefix="jackbox-cache-"))
-            atexit.register(shutil.rmtree, scratch, ignore_errors=True)
+            scratch = _scratch("jackbox-cache-")
             _folders[key] = scratch
             if folder.is_dir():
                 _overlay(folder, scratch)
@@ -76,6 +75,13 @@ def cache_dir() -> Path:
                               f"for this process only (set JACKBOX_CACHE_DIR to a writable folder to keep it)",
                               CacheWarning, stacklevel=3)
     return _folders[key]
+
+
+def _scratch(prefix: str) -> Path:
+    """A new temporary folder of this process, removed when it ends."""
+    folder = Path(tempfile.mkdtemp(prefix=prefix))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    return folder
 
 
 #: temporary folder -> the read-only cache folder it links (see cache_dir)
@@ -120,8 +126,7 @@ def set_aside(exc: OSError) -> Path:
     """
     folder = configured_cache_dir()
     current = cache_dir()
-    scratch = Path(tempfile.mkdtemp(prefix="jackbox-cache-"))
-    atexit.register(shutil.rmtree, scratch, ignore_errors=True)
+    scratch = _scratch("jackbox-cache-")
     _overlay(current, scratch)
     _folders[str(folder)] = scratch
     _read_only.pop(str(current), None)
@@ -213,8 +218,7 @@ class EngineLocator(_CacheLocator):
         try:
             self.ensure_cache_path()
         except OSError:          # (the folder was writable a moment ago): this process only
-            self._path = Path(tempfile.mkdtemp(prefix="jackbox-engine-"))
-            atexit.register(shutil.rmtree, self._path, ignore_errors=True)
+            self._path = _scratch("jackbox-engine-")
         return self
 
 
