@@ -1,9 +1,11 @@
 """Stage 3b: lay out the generated module of a model.
 
-One ``sympy.cse`` runs over every output of the model at once, so a term shared
-by the forcing, the gaps and their Jacobian (``sin(theta_box)``, say) gets one
-name everywhere; each function then takes, in order, only the intermediate
-terms its own outputs need. Every function body has the same shape::
+``sympy.cse`` runs once per function, over that function's outputs, and its
+intermediate terms are numbered from ``_x0`` in each: a function's text
+depends on its own outputs only, so a model edit (a new potential term) leaves
+the text of the gap functions as it was, and the runtime, which caches each
+function's machine code by its text, compiles only what changed. Every
+function body has the same shape::
 
     def phi(t, q, p, out):
         \"\"\"doc\"\"\"
@@ -113,23 +115,19 @@ def emit_module(model: Model, command: str) -> str:
         if stray:
             raise CodegenError(f"{fn.name}: undeclared symbols {sorted(map(str, stray))}")
 
-    # one cse over every output; a tuple twin reuses its array function's terms
-    primary = [fn for fn in fs if not fn.tuple_io]
-    everything = [e for fn in primary for e in fn.outputs]
-    temps = sp.numbered_symbols("_x", real=True)
-    replacements, reduced = sp.cse(everything, symbols=temps, order="canonical")
+    # one cse per function, its terms numbered from _x0: a function's text depends on its own
+    # outputs only, so an edit that leaves them alone leaves it alone (its machine code stays cached);
+    # a tuple twin reuses its array function's terms
     names = {s: local for arg in inputs.values() for s, (local, _) in arg.items()}
-    names |= {sym: sym.name for sym, _ in replacements}
-    printer = KernelPrinter(names)
-    position = {sym: i for i, (sym, _) in enumerate(replacements)}
-
-    outs_of, start = {}, 0
-    for fn in primary:
-        outs_of[fn.name] = reduced[start:start + len(fn.outputs)]
-        start += len(fn.outputs)
+    cses = {}
+    for fn in fs:
+        if not fn.tuple_io:
+            cses[fn.name] = sp.cse(fn.outputs, symbols=sp.numbered_symbols("_x", real=True), order="canonical")
     bodies = []
     for fn in fs:
-        outs = outs_of[fn.name.removesuffix("_s") if fn.tuple_io else fn.name]
+        replacements, outs = cses[fn.name.removesuffix("_s") if fn.tuple_io else fn.name]
+        printer = KernelPrinter(names | {sym: sym.name for sym, _ in replacements})
+        position = {sym: i for i, (sym, _) in enumerate(replacements)}
         if fn.name == "accel_s":
             bodies += _accel_split(fn, outs, replacements, position, inputs, printer, {model.t, *model.p})
         else:
