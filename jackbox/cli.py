@@ -629,10 +629,11 @@ def cmd_cache(args) -> int:
         print(f"cleared    {folder} ({len(files)} files, {size / 2**20:.1f} MiB)")
         return 0
     models = len(list(folder.glob("models/*.py")))
-    kernels = len(list(folder.glob("kernels/*.py")))
+    functions = len(list(folder.glob("kernels/*.py")))
     engines = len([p for p in folder.glob("engine/*") if p.is_dir()])
     print(f"cache      {folder}{'' if folder.is_dir() else ' (not created yet)'}")
-    print(f"holds      {models} generated models, {kernels} kernel modules (one per model), "
+    print(f"holds      {models} generated models, {functions} binding parts (a model's functions, compiled "
+          f"one by one), "
           f"{engines} engine build(s), {len(files)} files, {size / 2**20:.1f} MiB")
     return 0
 

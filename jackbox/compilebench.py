@@ -8,9 +8,11 @@ with ``JACKBOX_CACHE_DIR`` pointing at a cache of its own, and times it from
 start to exit:
 
 * **first run**: ``jackbox run shaken --no-plots`` from an empty cache;
-* **model edit**: with that cache (engine and shaken compiled), a scene of a
-  new structure (drop with a ``[potential]`` term it did not have) runs
-  0.05 s: generating its model, compiling its functions, running;
+* **model edit**: with that cache (engine and shaken compiled), shaken with a
+  ``[potential]`` term it did not have (a new structure) runs 0.05 s:
+  generating its model, compiling the functions the edit changed, running;
+* **new model**: with the same cache, drop with that term (a model none of
+  whose functions is cached) runs 0.05 s;
 * **every feature once**: from an empty cache, ``run``, ``ensemble`` and
   ``chaos`` of shaken, 0.05 s each, one after the other (the sum);
 * **warm start**: everything cached, ``jackbox run shaken --no-plots
@@ -38,10 +40,11 @@ from .fileio import write_atomic
 
 ROOT = Path(__file__).resolve().parent.parent
 #: the targets of the issue that asked for this table (seconds, on the 2-core machine it names)
-TARGETS = {"first_run": 12.0, "model_edit": 4.0, "every_feature": 30.0, "warm_start": 0.5}
+TARGETS = {"first_run": 12.0, "model_edit": 4.0, "new_model": None, "every_feature": 30.0, "warm_start": 0.5}
 LABELS = {
     "first_run": "first result of `jackbox run shaken --no-plots`, empty cache",
-    "model_edit": "a model edit (new structure) to its first result, engine cached",
+    "model_edit": "a model edit (shaken + a potential term, a new structure) to its first result, engine cached",
+    "new_model": "a new model (drop + a potential term, nothing of it cached) to its first result, engine cached",
     "every_feature": "every feature once (run, ensemble, chaos), empty cache",
     "warm_start": "warm start (everything cached): `jackbox run shaken --no-plots --t-end 0.001`",
 }
@@ -49,14 +52,16 @@ CLI = "import sys; from jackbox.cli import main; sys.exit(main())"
 SHORT = ("--t-end", "0.05")
 
 
-def edited_scene(folder: Path) -> Path:
-    """drop with a [potential] term it does not have: a structure no cache holds."""
-    text = (ROOT / "jackbox" / "scenes" / "drop.toml").read_text(encoding="utf-8")
+TETHER = '\n[potential]\ntether = "0.5*0.01*(x_jack - x_box)**2"\n'
+
+
+def edited_scene(folder: Path, base: str = "shaken") -> Path:
+    """A built-in scene with a [potential] term it does not have: a structure no cache holds."""
+    text = (ROOT / "jackbox" / "scenes" / f"{base}.toml").read_text(encoding="utf-8")
     if "[potential]" in text:
-        raise RuntimeError("drop.toml has a [potential] table already: pick another edit")
-    path = folder / "edited.toml"
-    path.write_text(text.replace('name = "drop"', 'name = "edited"', 1)
-                    + '\n[potential]\ntether = "0.5*0.01*(x_jack - x_box)**2"\n', encoding="utf-8")
+        raise RuntimeError(f"{base}.toml has a [potential] table already: pick another edit")
+    path = folder / f"edited-{base}.toml"
+    path.write_text(text.replace(f'name = "{base}"', f'name = "edited_{base}"', 1) + TETHER, encoding="utf-8")
     return path
 
 
@@ -83,17 +88,17 @@ class Code:
 
     def rows(self, work: Path) -> dict[str, float]:
         """One sample of every row, each from a cache of its own."""
-        scene = edited_scene(work)
         out = work / "out"
         cache = work / "cache-a"
         first = self.run(cache, out, "run", "shaken", "--no-plots")
-        edit = self.run(cache, out, "run", str(scene), "--no-plots", *SHORT)
+        edit = self.run(cache, out, "run", str(edited_scene(work)), "--no-plots", *SHORT)
+        new = self.run(cache, out, "run", str(edited_scene(work, "drop")), "--no-plots", *SHORT)
         warm = self.run(cache, out, "run", "shaken", "--no-plots", "--t-end", "0.001")
         cache = work / "cache-b"
         every = (self.run(cache, out, "run", "shaken", "--no-plots", *SHORT)
                  + self.run(cache, out, "ensemble", "shaken", "--n", "8", "--perturb", "theta_jack=1e-6", *SHORT)
                  + self.run(cache, out, "chaos", "shaken", "--n", "4", "--renorm", "0.01", *SHORT))
-        return {"first_run": first, "model_edit": edit, "every_feature": every, "warm_start": warm}
+        return {"first_run": first, "model_edit": edit, "new_model": new, "every_feature": every, "warm_start": warm}
 
 
 def measure(repeat: int, against: Path | None, say=print) -> dict:
@@ -130,7 +135,8 @@ def table(result: dict) -> str:
         cells = [f"{result['median_s'][n][key]:.2f} s" for n in names]
         if len(names) == 2:
             cells.append(f"{result['median_s'][names[0]][key] / result['median_s'][names[1]][key]:.2f}")
-        lines.append(f"| {label} | " + " | ".join(cells) + f" | <= {TARGETS[key]:g} s |")
+        target = "-" if TARGETS[key] is None else f"<= {TARGETS[key]:g} s"
+        lines.append(f"| {label} | " + " | ".join(cells) + f" | {target} |")
     return "\n".join(lines) + "\n"
 
 

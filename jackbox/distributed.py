@@ -234,7 +234,7 @@ def _numba_threads(threads: int) -> int:
 
 def _dispatchers():
     seen = {}
-    for module in loader._loaded.values():
+    for module in loader._parts.values():
         for value in vars(module).values():
             if isinstance(value, numba.core.dispatcher.Dispatcher):
                 seen[id(value)] = value

@@ -8,11 +8,13 @@ Three content-addressed pieces keep compiled code from ever going stale:
    ``<cache>/models/<hash>.py``, generated on first use and shared by every
    scene of that structure. The hash covers the scene's structure (not its
    name) and the compiler's source.
-2. The *binding module*: ``<cache>/kernels/<stem>_<key>.py``, the model's text,
-   the free-flight hot path (:mod:`jackbox.engine.flight`) and a binding that
-   compiles the model's functions as ``cfunc`` values; ``key`` hashes that
-   text, the engine's digest and Numba's version. Numba caches the machine
-   code beside that file.
+2. The *binding parts*: ``<cache>/kernels/<function>_<key>.py``, one for each
+   function the engine calls, holding that function and what it reaches by
+   name (for the free-flight hot path, :mod:`jackbox.engine.flight` and the
+   model's tuple functions), compiled as a ``cfunc`` value; ``key`` hashes
+   that text (with the engine's digest where it reaches engine code) and
+   Numba's version. Numba caches the machine code beside that file, so an
+   edit recompiles only the functions whose text it changed.
 3. The *engine* (:mod:`jackbox.engine`): compiled once per machine and engine
    version for every model, cached in ``<cache>/engine/<digest>/``.
 
@@ -28,6 +30,7 @@ tells a current module from a stale one. The cache folder is
 from __future__ import annotations
 
 import ast
+import functools
 import hashlib
 import importlib.util
 import json
@@ -172,74 +175,205 @@ def intact(path: Path) -> bool:
     return _intact[stamp]
 
 
-def binding_source(model_text: str, flight_text: str | None = None) -> str:
-    """Text of a model's binding module: the generated model, the hot path, then the binding.
+def binding_parts(model_text: str, flight_text: str | None = None) -> dict[str, str]:
+    """The text of each *binding part*: one small module per function the engine calls.
 
-    The binding compiles the model's functions as ``cfunc`` values of the
-    engine's signatures (:data:`jackbox.engine.SIGNATURES`) and the tuple
-    helpers of the hot path as inlined ``njit`` functions, all cached beside
-    the file.
+    A part holds one function of :data:`jackbox.engine.SIGNATURES` (or the
+    functions of a group of :data:`GROUPS`) with what it reaches by name and
+    nothing else: a gap function its generated body and ``import math``; the
+    free-flight hot path (:mod:`jackbox.engine.flight`) the model's tuple
+    functions and constants it calls, inlined. Each is compiled as a
+    ``cfunc`` and cached beside its file, which is named by a hash of its
+    text; so a model edit compiles only the functions whose text it changed
+    (a new potential term: the accelerations, the energy and the flight loop,
+    not the gaps), and a part two models share is compiled once. A part that reaches the
+    engine's code (the hot path's imports) names the engine's digest, so an
+    edit of the engine is never served stale machine code.
     """
     flight_text = FLIGHT_SOURCE.read_text() if flight_text is None else flight_text
+    return dict(_binding_parts(model_text, flight_text, engine.cache.DIGEST))
+
+
+@functools.lru_cache(maxsize=16)
+def _binding_parts(model_text: str, flight_text: str, digest: str) -> dict[str, str]:
+    """(binding_parts, kept for the texts a process sees again)"""
     present = _functions_of(model_text)
-    absent = [name for name in OPTIONAL if name not in present]
-    stubs = "".join("\n\n" + OPTIONAL[name] for name in absent)
-    tuples = [name for name in present if name.endswith("_s") or name == "tuple_of"]
-    rule = "# " + "-" * 77 + "\n"
-    return (
-        model_text + stubs + "\n\n" + rule
-        + "# The free-flight hot path (jackbox/engine/flight.py), compiled with this model\n" + rule
-        + flight_text + "\n\n" + rule
-        + "# Binding (jackbox.loader): the model's functions as the engine's function values\n" + rule
-        + "from numba import njit as _njit\n"
-        + "from jackbox.engine import bind as _bind\n\n"
-        + "".join(f"{name} = _njit(cache=True)({name})\n" for name in tuples)
-        + "".join(f"{name} = _njit(cache=True, inline=\"always\")({name})\n" for name in INLINED)
-        + "\n#: what the engine calls: cfunc values (plain functions when Numba's JIT is off)\n"
-        + "COMPILED = _bind(globals())\n"
-    )
+    stubs = "".join("\n\n" + OPTIONAL[name] for name in OPTIONAL if name not in present)
+    model_blocks, flight_blocks = _blocks(model_text + stubs), _blocks(flight_text)
+    defined = {name: i for i, (names, _, _) in enumerate(model_blocks + flight_blocks) for name in names}
+    blocks = model_blocks + flight_blocks
+    parts = {}
+    for part, entries in part_entries().items():
+        wanted, todo = set(), list(entries)
+        while todo:
+            i = defined.get(todo.pop())
+            if i is not None and i not in wanted:
+                wanted.add(i)
+                todo.extend(blocks[i][2])
+        chosen = sorted(wanted)
+        names = {name for i in chosen for name in blocks[i][0]}
+        engine_code = any(i >= len(model_blocks) for i in chosen)
+        rule = "# " + "-" * 77 + "\n"
+        parts[part] = (
+            rule + f"# Binding part (jackbox.loader): the model's {', '.join(entries)} as the engine's function "
+            + ("values" if len(entries) > 1 else "value") + "\n"
+            + "".join(f"# signature of {entry}: {engine.SIGNATURES[entry]}\n" for entry in entries)
+            + (f"# engine: {digest}\n" if engine_code else "")
+            + rule + "\n"
+            + "\n\n\n".join(blocks[i][1] for i in chosen) + "\n\n\n"
+            + ("from numba import njit as _njit\n" if names & set(_JITTED) else "")
+            + "from jackbox.engine import bind_part as _bind_part\n\n"
+            + "".join(f"{name} = _njit(cache=True{_JITTED[name]})({name})\n" for name in _JITTED if name in names)
+            + "COMPILED = {" + ", ".join(f"{entry!r}: _bind_part({entry!r}, {entry})" for entry in entries) + "}\n"
+        )
+    return parts
+
+
+#: functions compiled together, as one binding part: the two RK4 loops of the hot path share every
+#: helper (the model's accelerations on tuples, the tableau), which each part would compile again
+GROUPS = {"flight": ("free_step", "fly")}
+
+
+def part_entries() -> dict[str, tuple[str, ...]]:
+    """The binding parts of a model: part name -> the functions of SIGNATURES it holds, in their order."""
+    out = {}
+    for name in engine.SIGNATURES:
+        group = next((g for g, members in GROUPS.items() if name in members), None)
+        if group is None:
+            out[name] = (name,)
+        elif group not in out:
+            out[group] = tuple(n for n in engine.SIGNATURES if n in GROUPS[group])
+    return out
+
+
+#: the helpers of the hot path a part compiles as njit functions (callees inlined by LLVM, or
+#: by Numba where marked), with their options
+_JITTED = {**{name: "" for name in ("tuple_of", "accel_s", "accel_time_s", "phi_s", "box_motion_s", "axpy_s",
+                                     "wsum_s")},
+           **{name: ', inline="always"' for name in INLINED}}
+
+
+def _blocks(text: str) -> list[tuple[set, str, set]]:
+    """The top-level statements of a module's text: (names each defines, its source, names it reads).
+
+    The module's docstring is left out; imports define the names they bind.
+    """
+    lines = text.splitlines()
+    out = []
+    for node in ast.parse(text).body:
+        if isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant):
+            continue
+        if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+            names = {node.name}
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            names = {(alias.asname or alias.name).split(".")[0] for alias in node.names}
+        elif isinstance(node, (ast.Assign, ast.AnnAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            names = {n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name)}
+        else:
+            raise ValueError(f"a binding cannot take a top-level {type(node).__name__} (line {node.lineno})")
+        first = min([node.lineno] + [d.lineno for d in getattr(node, "decorator_list", [])])
+        source = "\n".join(lines[first - 1:node.end_lineno])
+        reads = {n.id for n in ast.walk(node) if isinstance(n, ast.Name)} - names
+        out.append((names, source, reads))
+    return out
+
+
+def model_module(model_file: Path, model_text: str) -> ModuleType:
+    """The generated model as a plain module (its constants and Python functions), with stubs for what it lacks."""
+    present = _functions_of(model_text)
+    stubs = "".join("\n\n" + OPTIONAL[name] for name in OPTIONAL if name not in present)
+    module = ModuleType(f"jackbox_model_{_ident(model_file.stem)}")
+    module.__file__ = str(model_file)
+    exec(compile(model_text + stubs, str(model_file), "exec"), module.__dict__)
+    return module
+
+
+def part_path(name: str, text: str) -> Path:
+    """Where the binding part of this text lives: named by the function and a hash of the text and Numba's version."""
+    key = hashlib.sha256((numba.__version__ + "\0" + text).encode()).hexdigest()[:16]
+    return cache_dir() / "kernels" / f"{name}_{key}.py"
 
 
 def load_binding(model_file: Path, flight_text: str | None = None) -> ModuleType:
-    """Import (writing it on first use) the binding module of a generated model."""
-    text = binding_source(model_file.read_text(), flight_text)
-    key = hashlib.sha256((numba.__version__ + "\0" + engine.cache.DIGEST + "\0" + text).encode()).hexdigest()[:16]
+    """The model as a module, with its functions bound to the engine in ``COMPILED`` (compiled or loaded).
+
+    Writes the binding parts (:func:`binding_parts`) that are not in the cache
+    yet; those whose machine code is not cached are compiled, about half in a
+    helper process (:func:`jackbox.engine.start_binding`) where there are two
+    cores. ``CACHE`` says whether any was compiled now ("miss").
+    """
+    model_text = model_file.read_text()
+    texts = binding_parts(model_text, flight_text)
+    paths = {name: part_path(name, text) for name, text in texts.items()}
+    key = hashlib.sha256("\0".join([model_text, *map(str, paths.values())]).encode()).hexdigest()[:16]
     if key in _loaded:
         return _loaded[key]
-    # committed models are <name>.py, cached ones <model hash>.py
-    path = cache_dir() / "kernels" / f"{_ident(model_file.stem)}_{key}.py"
-    if not path.exists() or path.read_text() != text:
-        try:
-            write_atomic(path, text)
-        except OSError as exc:         # a full disk: go on in a folder of this process
-            path = engine.cache.set_aside(exc) / "kernels" / path.name
-            write_atomic(path, text)
-    if path not in _verified:
-        _verified.add(path)
+    for name, text in texts.items():
+        paths[name] = _write_part(paths[name], text)
+    module = model_module(model_file, model_text)
+    todo = {name: path for name, path in paths.items() if str(path) not in _parts and not _cached(name, path)}
+    theirs = engine.start_binding(todo) if todo else []
+    parts = {}
+    for name in sorted(paths, key=lambda name: name in theirs):      # the helper's last
+        if name in theirs:
+            engine.wait_binding(paths[name])
+        parts[name] = _import_part(paths[name])
+    compiled = {entry: fn for part in parts.values() for entry, fn in part.COMPILED.items()}
+    module.COMPILED = {name: compiled[name] for name in engine.SIGNATURES}
+    module.PARTS = paths
+    module.PART_CACHE = {name: part.CACHE for name, part in parts.items()}
+    module.CACHE = ("disabled" if numba.config.DISABLE_JIT else
+                    "miss" if any(part.CACHE == "miss" for part in parts.values()) else "hit")
+    if module.CACHE == "miss":
+        engine.cache.kept_for_now(f"the functions of the model {model_file.name}")
+    _loaded[key] = module
+    return module
+
+
+def _write_part(path: Path, text: str) -> Path:
+    """Write a binding part unless it is there (whole); a full disk moves the cache aside. Returns its path."""
+    try:
+        if path.exists() and path.read_text() == text:
+            return path
+        write_atomic(path, text)
+    except OSError as exc:         # a full disk: go on in a folder of this process
+        path = engine.cache.set_aside(exc) / "kernels" / path.name
+        write_atomic(path, text)
+    return path
+
+
+#: binding parts imported in this process: path -> module (a part two models share is loaded once)
+_parts: dict[str, ModuleType] = {}
+
+
+def _import_part(path: Path) -> ModuleType:
+    """Import a binding part (compiling its function, or loading its machine code from the cache)."""
+    if str(path) in _parts:
+        return _parts[str(path)]
+    if str(path) not in _verified:
+        _verified.add(str(path))
         _check_manifest(_numba_files(path), _manifest(path), path.name)
     name = engine.binding_name(path)
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
     cached = bool(_numba_files(path))
-    if not cached:
-        engine.start_binding(path)     # half of its functions in a helper process, the other half here
     try:
         _import(spec, module)
     except Exception as exc:       # a damaged cache entry that slipped past the manifest
         if not cached:             # nothing was loaded: a failure of its own
             raise
-        _warn(f"loading the compiled functions of {path.name} from the cache failed "
-              f"({type(exc).__name__}: {str(exc)[:120]}): compiling them again")
+        _warn(f"loading the compiled function of {path.name} from the cache failed "
+              f"({type(exc).__name__}: {str(exc)[:120]}): compiling it again")
         _clear(_numba_files(path), _manifest(path))
         _import(spec, module)
-    module.CACHE = "disabled"     # how the model's functions came: compiled now ("miss") or loaded
+    module.CACHE = "disabled"
     if not numba.config.DISABLE_JIT:
         module.CACHE = "hit" if all(fn.cache_hits for fn in module.COMPILED.values()) else "miss"
-        if module.CACHE == "miss":
+        if module.CACHE == "miss" or not _manifest(path).exists():     # (a helper's: written by it)
             _write_manifest(_numba_files(path), _manifest(path))
-            engine.cache.kept_for_now(f"the model's functions ({path.name})")
-    _loaded[key] = module
+    _parts[str(path)] = module
     return module
 
 
@@ -288,7 +422,7 @@ class Kernel:
     @property
     def cache_hit(self) -> bool:
         """Whether every model function was loaded from Numba's cache (none compiled in this process)."""
-        return all(getattr(fn, "cache_hits", 0) for fn in self.module.COMPILED.values())
+        return all(cache == "hit" for cache in self.module.PART_CACHE.values())
 
     def table(self, loops=("exact",), lazy: bool = True):
         """The model and the engine's loops as the one array the entry points take (made once per kernel).
@@ -374,22 +508,32 @@ def kernel_for(scene: Scene, log=None, method: str | None = None) -> Kernel:
     if not model_path(scene).exists():
         engine.warm_binder()          # a new structure: the helper starts while its model is generated
     path = ensure_model(scene, log)
-    bound = numba.config.DISABLE_JIT or _bound(path)
+    unbound = [] if numba.config.DISABLE_JIT else _unbound(path)
+    bound = not unbound
     if bound:
         engine.cool_binder()
     if method is not None:
-        engine.start(ENTRY[method], (LOOP[method],), lazy=method == "exact", busy=0.0 if bound else MODEL_COST)
+        engine.start(ENTRY[method], (LOOP[method],), lazy=method == "exact",
+                     busy=sum(engine.PART_COST.get(name, 0.5) for name in unbound))
     if log and not bound:
         log(f"compiling the model functions of {scene.name} (first use of this structure) ...")
     return load_kernel(path)
 
 
-def _bound(model_file: Path) -> bool:
-    """Whether the model's binding is loaded in this process or its machine code is cached."""
-    text = binding_source(model_file.read_text())
-    key = hashlib.sha256((numba.__version__ + "\0" + engine.cache.DIGEST + "\0" + text).encode()).hexdigest()[:16]
-    path = cache_dir() / "kernels" / f"{_ident(model_file.stem)}_{key}.py"
-    return key in _loaded or any(path.parent.glob(f"__pycache__/{path.stem}.fly-*.nbi"))
+def _unbound(model_file: Path) -> list[str]:
+    """The model's binding parts neither loaded in this process nor cached (those a load would compile)."""
+    out = []
+    for name, text in binding_parts(model_file.read_text()).items():
+        path = part_path(name, text)
+        if str(path) not in _parts and not _cached(name, path):
+            out.append(name)
+    return out
+
+
+def _cached(part: str, path: Path) -> bool:
+    """Whether Numba's cache beside a binding part holds an index for each of its functions."""
+    return all(any(path.parent.glob(f"__pycache__/{path.stem}.{entry}-*.nbi"))
+               for entry in part_entries()[part])
 
 
 #: the engine's entry points each method needs (the first is the one to look for in the cache)
@@ -398,8 +542,6 @@ ENTRY = {"exact": ("run_exact", "fill_tolerances"), "naive": ("run_naive",),
          "chaos": ("run_twin_members", "set_up_members", "fill_tolerances")}
 #: the loop each method runs (compiled once as a function value)
 LOOP = {"exact": "exact", "naive": "naive", "ensemble": "exact", "chaos": "exact"}
-#: seconds a model's functions take to compile (2 cores; see engine.COST)
-MODEL_COST = 6.0
 
 
 def compile_kernel(kernel: Kernel, method: str | None = None) -> dict:

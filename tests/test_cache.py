@@ -52,6 +52,7 @@ def fresh_cache(tmp_path, monkeypatch):
     # kernels imported earlier in this process would be reused from memory
     monkeypatch.setattr(loader, "_loaded", {})
     monkeypatch.setattr(loader, "_stamped", {})
+    monkeypatch.setattr(loader, "_parts", {})
     return tmp_path / "cache"
 
 
@@ -66,7 +67,8 @@ def test_changed_hot_path_is_recompiled(fresh_cache, tmp_path, monkeypatch):
     after = jackbox.simulate("drop", t_end=0.3)
     assert not loader.load_kernel(loader.ensure_model(jackbox.load_scene("drop"))).cache_hit
     assert np.abs(after.q[-1] - before.q[-1]).max() > 1e-3   # the edit shows: not the old code
-    assert len(list((fresh_cache / "kernels").glob("drop_*.py"))) == 2
+    # the hot path's functions were compiled again; the gaps, which do not reach it, were not
+    assert [len(list((fresh_cache / "kernels").glob(f"{name}_*.py"))) for name in ("flight", "phi_q")] == [2, 1]
 
 
 def test_changed_engine_source_gets_a_cache_folder_of_its_own(tmp_path):
@@ -94,8 +96,8 @@ def test_edited_model_module_is_recompiled(fresh_cache, tmp_path):
     # without a new seal is damage: tests/test_cache_health.py.)
     text = path.read_text()
     body = text[: text.rindex(SEAL)].removesuffix("\n")
-    assert body.count("    _x2 = -p_g\n") == 2
-    path.write_text(seal(body.replace("    _x2 = -p_g\n", "    _x2 = p_g\n")))
+    assert body.count("    _x0 = -p_g\n") == 2
+    path.write_text(seal(body.replace("    _x0 = -p_g\n", "    _x0 = p_g\n")))
     after = jackbox.simulate(scene, t_end=0.3, method=METHOD)
     assert after.meta["kernel"]["cache"] == "miss"
     assert after.q[-1, 4] > before.q[-1, 4] + 0.5      # the jack rose instead of falling
@@ -110,6 +112,25 @@ def test_changed_scene_structure_regenerates_the_model(fresh_cache, tmp_path):
     # each run used its own force: x differs by (2 - -2) t^2 / 2 / m_jack after t = 0.2 s
     assert a.q[-1, 3] - b.q[-1, 3] == pytest.approx(0.08, rel=1e-9)
     assert len(list((fresh_cache / "models").glob("*.py"))) == 2
+
+
+def test_a_model_edit_compiles_only_the_functions_it_changed(fresh_cache, tmp_path):
+    # each function is compiled (and cached) on its own, named by its text: a new potential term
+    # changes the accelerations, the energy and the hot path that calls them, never the gaps
+    text = drop_of_its_own()
+    one = jackbox.simulate(jackbox.load_scene(write_scene(tmp_path, text, "one.toml")), t_end=0.05, method=METHOD)
+    before = set(loader._parts)
+    files = set((fresh_cache / "kernels").glob("*.py"))
+    edited = jackbox.load_scene(write_scene(
+        tmp_path, text + '\n[potential]\ntether = "0.5*0.01*(x_jack - x_box)**2"\n', "two.toml"))
+    kernel = loader.kernel_for(edited)
+    new = {name for name, path in kernel.module.PARTS.items() if str(path) not in before}
+    assert new == {"accel", "energy", "flight"}      # (flight: fly and free_step, the hot path)
+    assert {path.name.rsplit("_", 1)[0] for path in set((fresh_cache / "kernels").glob("*.py")) - files} == new
+    # and the tether pulls (the edit is not served the old functions): the jack moves 0.8 m/s
+    # sideways from x_box, so the tether's k (x_jack - x_box) / m_jack lags it by k 0.8 t^3 / 6
+    two = jackbox.simulate(edited, t_end=0.05, method=METHOD)
+    assert two.q[-1, 3] - one.q[-1, 3] == pytest.approx(-0.01 * 0.8 * 0.05 ** 3 / 6, rel=1e-3)
 
 
 def test_builtin_scene_uses_the_committed_module():
@@ -131,7 +152,7 @@ def test_renamed_copy_of_a_scene_compiles_nothing(fresh_cache, tmp_path):
     b = jackbox.simulate(two, t_end=0.2, method=METHOD)
     assert a.meta["kernel"]["cache"] == "miss" and b.meta["kernel"]["cache"] == "memory"
     assert len(list((fresh_cache / "models").glob("*.py"))) == 1
-    assert len(list((fresh_cache / "kernels").glob("*.py"))) == 1
+    assert len(list((fresh_cache / "kernels").glob("*.py"))) == len(loader.part_entries())
     np.testing.assert_array_equal(a.q, b.q)
     copy = jackbox.load_scene(write_scene(tmp_path, jackbox.builtin_scenes()["drop"].read_text(), "copy.toml"))
     assert loader.model_path(copy) == loader.GENERATED_DIR / "drop.py"

@@ -182,19 +182,30 @@ def test_a_new_model_compiles_half_of_its_functions_in_a_helper(tmp_path, monkey
     monkeypatch.setenv("JACKBOX_COMPILE_JOBS", "2")
     monkeypatch.setattr(loader, "_loaded", {})
     monkeypatch.setattr(loader, "_stamped", {})
+    monkeypatch.setattr(loader, "_parts", {})
     monkeypatch.setattr(engine, "_helpers", {})
     scene = jackbox.load_scene(write_scene(tmp_path, drop_of_its_own()))
-    started = []
+    started, shares = [], []
     spawn = engine._spawn
     monkeypatch.setattr(engine, "_spawn", lambda args, **kw: started.append(args) or spawn(args, **kw))
+    start_binding = engine.start_binding
+    monkeypatch.setattr(engine, "start_binding", lambda todo: shares.append(start_binding(todo)) or shares[-1])
     kernel = loader.kernel_for(scene)
     compiled = kernel.module.COMPILED
     assert list(compiled) == list(engine.SIGNATURES)
-    # a new structure: the helper started before its model was generated, and took one function more
-    assert started == [["--binding", "-", *engine.WARM_SHARE]] and engine._warm is None
+    # a new structure: the helper started before its model was generated, then got the paths of its share
+    assert started == [["--parts", "-"]] and engine._warm is None
+    [share] = shares
+    parts = loader.part_entries()
+    assert 0 < len(share) < len(parts)
+    # shared by cost: neither side has more than half of the work and the heaviest part more
+    cost = {name: engine.PART_COST[name] for name in parts}
+    theirs = sum(cost[name] for name in share)
+    assert abs(2 * theirs - sum(cost.values())) <= max(cost.values()) + engine.FIRST_COMPILE
     # the helper's share was loaded from the cache it wrote; the rest was compiled here
-    assert all(compiled[name].cache_hits for name in engine.WARM_SHARE)
-    assert not any(compiled[name].cache_hits for name in engine.SIGNATURES if name not in engine.WARM_SHARE)
+    helpers = {entry for name in share for entry in parts[name]}
+    assert all(compiled[name].cache_hits for name in helpers)
+    assert not any(compiled[name].cache_hits for name in engine.SIGNATURES if name not in helpers)
     assert not engine._binders
     # the same numbers as the committed drop (push = 0): the functions work, whoever compiled them
     run = jackbox.simulate(scene, t_end=0.3)

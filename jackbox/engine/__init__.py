@@ -83,7 +83,8 @@ _helpers: dict = {}
 
 __all__ = ["DONE", "IMPACT_LOG_FULL", "MISSING", "NONFINITE", "STALLED", "IMPULSE", "REST", "RELEASE", "FALLBACK", "WARNING",
            "WARN_LCP", "WARN_LOCATE", "MAX_EVENTS", "MODE_SLOTS", "T_GAP", "T_EVENT", "T_VREST", "T_AREST", "T_BOXV", "T_WALL", "T_RJACK", "T_RBOX", "T_SPEED",
-           "Model", "Samples", "Events", "Setup", "SIGNATURES", "SIZES", "ENTRIES", "LOOPS", "LAZY", "entry", "compiled_loop", "prepare", "start", "start_binding", "bind", "binding_name", "table"]
+           "Model", "Samples", "Events", "Setup", "SIGNATURES", "SIZES", "ENTRIES", "LOOPS", "LAZY", "entry", "compiled_loop", "prepare", "start", "start_binding", "wait_binding", "bind_part",
+           "binding_name", "table"]
 
 
 def _dispatcher(name: str):
@@ -215,43 +216,31 @@ def start(names, loops=(), lazy: bool = False, busy: float = 0.0) -> list[str]:
     return theirs
 
 
-#: (in a helper process) the model functions a binding module compiles, None: all of them
-BIND_ONLY: set | None = None
-#: a binding module's file -> (the helper process compiling some of its functions, their names)
+#: seconds each model function takes to compile alone, as its own binding part (2 cores; measured by
+#: benchmarks/compile_parts.py --scene drop, after Numba's first compile): only to share them out
+PART_COST = {"inverse_mass": 0.1, "accel": 0.05, "phi": 0.2, "phi_q": 0.6, "phi_t": 0.03, "gap_rate": 0.3,
+             "gap_bias": 0.45, "energy": 0.1, "box_motion": 0.03, "clearance": 0.25, "flight": 1.4}
+#: what Numba's first compile in a process costs beyond the function itself (see warm_binder)
+FIRST_COMPILE = 0.6
+#: a binding part's file -> the helper process compiling it (see start_binding)
 _binders: dict = {}
-#: the model functions a helper compiles for a binding (start_binding): the free-flight hot path, which
-#: shares its inlined helpers (the model's tuple functions, RK4), and the energy: about half the work
-HELPER_SHARE = ("free_step", "fly", "clearance", "energy")
-#: a warm helper's share (warm_binder): one function more, as it spends no time starting (measured: with
-#: gap_rate a model edit took 5.2 s against 6.5 s cold and 5.8 s with phi_q instead, medians of 4, 2 cores)
-WARM_SHARE = HELPER_SHARE + ("gap_rate",)
 
 
-def bind(namespace: dict) -> dict:
-    """A model's functions as the engine's function values: ``cfunc`` of SIGNATURES, compiled or loaded.
+def bind_part(name: str, fn):
+    """A model function as the engine's function value: a ``cfunc`` of SIGNATURES[name], compiled or loaded.
 
-    Called by a binding module (:mod:`jackbox.loader`) at its import, with its
-    globals. Functions a helper process is compiling (:func:`start_binding`)
-    come last: loaded from the cache once it is done, compiled here if it
-    failed. Plain functions when Numba's JIT is off.
+    Called by a binding part (:func:`jackbox.loader.binding_parts`) at its
+    import. The plain function when Numba's JIT is off.
     """
-    names = [name for name in SIGNATURES if BIND_ONLY is None or name in BIND_ONLY]
     if numba.config.DISABLE_JIT:
-        return {name: namespace[name] for name in names}
-    helper, theirs = _binders.pop(str(Path(namespace["__file__"]).resolve()), (None, ()))
-    out = {}
+        return fn
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
-        for name in sorted(names, key=lambda name: name in theirs):
-            if name in theirs and helper is not None:
-                helper.wait()
-                helper = None
-            out[name] = numba.cfunc(SIGNATURES[name], cache=True)(namespace[name])
-    return {name: out[name] for name in names}
+        return numba.cfunc(SIGNATURES[name], cache=True)(fn)
 
 
 def binding_name(path) -> str:
-    """The module name of the binding module at ``path`` (the same in every process that imports it)."""
+    """The module name of the binding part at ``path`` (the same in every process that imports it)."""
     return "jackbox_model_" + Path(path).stem
 
 
@@ -260,46 +249,74 @@ def warm_binder() -> bool:
 
     It starts Python and Numba and compiles a trivial function (Numba's first
     compile in a process costs about half a second more than the next) while
-    this process runs the compiler; then it waits for the binding module's
-    path on its standard input. Returns whether one was started (or runs).
+    this process runs the compiler; then it waits for the paths of the
+    binding parts it is to compile on its standard input. Returns whether one
+    was started (or runs).
     """
     global _warm
     if _warm is not None:
         return True
     if numba.config.DISABLE_JIT or _jobs() < 2 or _helpers:
         return False
-    _warm = _spawn(["--binding", "-", *WARM_SHARE], stdin=subprocess.PIPE)
+    _warm = _spawn(["--parts", "-"], stdin=subprocess.PIPE)
     return _warm is not None
 
 
-#: the helper warm_binder started, waiting for a binding module's path
+#: the helper warm_binder started, waiting for the paths of binding parts
 _warm = None
 
 
-def start_binding(path: Path) -> list[str]:
-    """Hand HELPER_SHARE of the binding module at ``path`` to a helper process, before importing it here.
+def start_binding(todo: dict) -> list[str]:
+    """Hand about half of the model functions to compile to a helper process, before compiling the rest here.
 
-    Only when no helper is compiling engine parts (two cores, two processes);
-    the one :func:`warm_binder` started if there is one. Returns the
-    functions handed out.
+    todo: function name -> its binding part's file, for the functions whose
+    machine code is not cached. Shared by PART_COST, the heaviest first, each
+    to the side that will be done sooner; the helper of :func:`warm_binder`
+    if there is one (it has paid Numba's first compile already). Only when no
+    helper is compiling engine parts (two cores, two processes). Returns the
+    functions handed out; :func:`wait_binding` waits for one of them.
     """
     global _warm
-    if numba.config.DISABLE_JIT or _jobs() < 2 or _helpers:
+    if numba.config.DISABLE_JIT or _jobs() < 2 or _helpers or len(todo) < 2:
+        cool_binder()
         return []
-    path = Path(path).resolve()
-    process, _warm, share = _warm, None, WARM_SHARE
-    if process is not None:
-        try:                # (a line into an empty pipe: never blocks)
-            process.stdin.write(f"{path}\n".encode())
-            process.stdin.close()
+    process, _warm = _warm, None
+    mine = FIRST_COMPILE
+    theirs = 0.0 if process is not None else 0.5 + FIRST_COMPILE     # (a helper's start: Python, Numba)
+    share = []
+    for name in sorted(todo, key=lambda n: -PART_COST.get(n, 0.5)):
+        if theirs < mine:
+            share.append(name)
+            theirs += PART_COST.get(name, 0.5)
+        else:
+            mine += PART_COST.get(name, 0.5)
+    paths = [str(Path(todo[name]).resolve()) for name in share]
+    if not share:
+        pass
+    elif process is not None:
+        try:                # (lines into an empty pipe: never blocks)
+            process.stdin.write("".join(f"{path}\n" for path in paths).encode())
         except OSError:     # it ended early: start another
             process = None
-    if process is None:
-        process, share = _spawn(["--binding", str(path), *HELPER_SHARE]), HELPER_SHARE
+    if process is not None:
+        try:
+            process.stdin.close()        # (no work for it if share is empty: it ends)
+        except OSError:
+            pass
+    if share and process is None:
+        process = _spawn(["--parts", *paths])
     if process is None:
         return []
-    _binders[str(path)] = (process, share)
-    return list(share)
+    for path in paths:
+        _binders[path] = process
+    return share
+
+
+def wait_binding(path) -> None:
+    """Wait for the helper compiling the binding part at ``path``, if one is."""
+    process = _binders.pop(str(Path(path).resolve()), None)
+    if process is not None:
+        process.wait()
 
 
 def cool_binder() -> None:

@@ -1,40 +1,40 @@
-"""A helper process that compiles parts of the engine into the cache (see :func:`jackbox.engine.start`).
+"""A helper process that compiles parts of the engine or of a model into the cache.
 
     python -m jackbox.engine.helper PART...
-    python -m jackbox.engine.helper --binding FILE FUNCTION...
-    python -m jackbox.engine.helper --binding - FUNCTION...     (FILE: the first line of input)
+    python -m jackbox.engine.helper --parts FILE...
+    python -m jackbox.engine.helper --parts -          (FILE...: the lines of its input)
 
 PART: a loop or stage (:data:`jackbox.engine.LOOPS`) or an entry point
-(:data:`jackbox.engine.ENTRIES`); or, with ``--binding``, functions of a
-model's binding module (:func:`jackbox.engine.bind`; its other functions are
-left to the process that started this one); with ``-``, it warms up first
-and then reads FILE from its input (it ends if the input closes first). The cache folder is
-``JACKBOX_CACHE_DIR``, as the process that started it resolved it. Exit
-status 0 when every part is in the cache, 1 otherwise (that process then
-compiles what is missing).
+(:data:`jackbox.engine.ENTRIES`) (see :func:`jackbox.engine.start`); FILE: a
+binding part of a model (:func:`jackbox.loader.binding_parts`), imported so
+that its function compiles into the cache (see
+:func:`jackbox.engine.start_binding`). With ``-`` it warms up first, then
+reads the files' paths from its input until it closes (none: it ends). The
+cache folder is ``JACKBOX_CACHE_DIR``, as the process that started it
+resolved it. Exit status 0 when every part is in the cache, 1 otherwise (that
+process then compiles what is missing).
 """
 
 import importlib.util
 import sys
 
-from . import ENTRIES, LOOPS, SIGNATURES, binding_name, compile_part
+from . import ENTRIES, LOOPS, binding_name, compile_part
 
 
-def bind_only(path: str, names: list[str]) -> int:
-    """Import the binding module at path, compiling only the model functions named."""
-    from .. import engine
-
-    unknown = [name for name in names if name not in SIGNATURES]
-    if unknown:
-        print(f"not a model function: {', '.join(unknown)}", file=sys.stderr)
-        return 1
-    engine.BIND_ONLY = set(names)
-    # under the name the starting process gives it: Numba's cached code names its module
-    spec = importlib.util.spec_from_file_location(binding_name(path), path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return 0
+def import_parts(paths: list[str]) -> int:
+    """Import the binding parts at these paths, under the names the starting process gives them."""
+    status = 0
+    for path in paths:
+        # Numba's cached code names its module: the same name in every process
+        spec = importlib.util.spec_from_file_location(binding_name(path), path)
+        if spec is None:
+            print(f"not a binding part: {path}", file=sys.stderr)
+            status = 1
+            continue
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = module
+        spec.loader.exec_module(module)
+    return status
 
 
 def warm_up() -> None:
@@ -45,12 +45,11 @@ def warm_up() -> None:
 
 
 def main(argv: list[str]) -> int:
-    if argv[:2] == ["--binding", "-"]:       # warm up, then the file's path from the first line of input
+    if argv[:2] == ["--parts", "-"]:       # warm up, then the files' paths from the lines of the input
         warm_up()
-        path = sys.stdin.readline().strip()
-        return bind_only(path, argv[2:]) if path else 0
-    if argv[:1] == ["--binding"] and len(argv) >= 2:
-        return bind_only(argv[1], argv[2:])
+        return import_parts([line.strip() for line in sys.stdin if line.strip()])
+    if argv[:1] == ["--parts"]:
+        return import_parts(argv[1:])
     unknown = [name for name in argv if name not in LOOPS and name not in ENTRIES]
     if unknown:
         print(f"not a part of the engine: {', '.join(unknown)}", file=sys.stderr)
