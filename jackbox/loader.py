@@ -427,9 +427,9 @@ class Kernel:
     def table(self, loops=("exact",), lazy: bool = True):
         """The model and the engine's loops as the one array the entry points take (made once per kernel).
 
-        lazy: the stages compiled on first need (engine.LAZY) may be left out,
-        for the exact loop of one run (it hands back a step that needs one);
-        a parallel loop over members gets them all.
+        lazy: the stages compiled on first need (engine.LAZY) may be left out
+        (the exact loop hands back a step that needs one: see
+        :meth:`integrate_exact` and :meth:`run_members`).
         """
         key = (loops, lazy)
         if key not in self._tables:
@@ -460,11 +460,46 @@ class Kernel:
             self.table(("naive",)), q, qd, p, float(t0), float(dt), i_begin, i_end, n_total, record_every,
             rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, kind, n_imp)
 
-    def run_members(self, *args):
-        return engine.entry("run_members")(self.table(lazy=False), *args)
+    def run_members(self, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
+        """Every member, in parallel (see :func:`jackbox.engine.members.run_members`); rows of the outputs filled.
 
-    def run_twin_members(self, *args):
-        return engine.entry("run_twin_members")(self.table(lazy=False), *args)
+        The stages compiled on first need (engine.LAZY) are left out while
+        they are not compiled: a member whose step needs one stops (status
+        MISSING); the stage is then compiled and those members run again
+        from their start, which gives the numbers a run with every stage gives
+        (a member's result depends on its inputs only).
+        """
+        def run(table, rows, *outputs):
+            engine.entry("run_members")(table, *(a[rows] for a in (Q0, QD0, P, TOL)), dt, n_steps, sample_steps,
+                                        *outputs)
+
+        engine.entry("run_members")(self.table(), Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd,
+                                    fin_q, fin_qd, fin)
+        again = np.flatnonzero(fin[:, 3] == engine.MISSING)
+        if again.size:
+            outputs = (np.full_like(samp_q[again], np.nan), np.full_like(samp_qd[again], np.nan),
+                       np.zeros_like(fin_q[again]), np.zeros_like(fin_qd[again]), np.zeros_like(fin[again]))
+            run(self._all_stages(), again, *outputs)
+            for whole, part in zip((samp_q, samp_qd, fin_q, fin_qd, fin), outputs):
+                whole[again] = part
+
+    def run_twin_members(self, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin):
+        """Twins of every member, in parallel; members stopped for a stage not compiled run again (see run_members)."""
+        engine.entry("run_twin_members")(self.table(), Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale,
+                                         stretch, fin)
+        again = np.flatnonzero(fin[:, 1] == engine.MISSING)
+        if again.size:
+            outputs = (np.zeros_like(stretch[again]), np.zeros_like(fin[again]))
+            engine.entry("run_twin_members")(self._all_stages(), *(a[again] for a in (Q0, QD0, DQ, DQD, P, TOL)),
+                                             dt, n_steps, renorm_steps, scale, *outputs)
+            stretch[again], fin[again] = outputs
+
+    def _all_stages(self):
+        """The table of the exact loop with every stage, compiling the ones compiled on first need now."""
+        if engine.prepare((), ("exact",)) == "miss":
+            engine.cache.kept_for_now("a stage of the engine")
+        self._tables.pop((("exact",), True), None)
+        return self.table(lazy=False)
 
     def set_up_members(self, setup, Q0, QD0, P, TOL, OFFSET, GAP):
         return engine.entry("set_up_members")(self.table(()), setup, Q0, QD0, P, TOL, OFFSET, GAP)
@@ -513,7 +548,7 @@ def kernel_for(scene: Scene, log=None, method: str | None = None) -> Kernel:
     if bound:
         engine.cool_binder()
     if method is not None:
-        engine.start(ENTRY[method], (LOOP[method],), lazy=method == "exact",
+        engine.start(ENTRY[method], (LOOP[method],), lazy=method in LAZY_METHODS,
                      busy=sum(engine.PART_COST.get(name, 0.5) for name in unbound))
     if log and not bound:
         log(f"compiling the model functions of {scene.name} (first use of this structure) ...")
@@ -542,6 +577,9 @@ ENTRY = {"exact": ("run_exact", "fill_tolerances"), "naive": ("run_naive",),
          "chaos": ("run_twin_members", "set_up_members", "fill_tolerances")}
 #: the loop each method runs (compiled once as a function value)
 LOOP = {"exact": "exact", "naive": "naive", "ensemble": "exact", "chaos": "exact"}
+#: the methods whose runs leave the stages of engine.LAZY out until one needs them (see Kernel.integrate_exact
+#: and Kernel.run_members): an elastic run or study never compiles them
+LAZY_METHODS = ("exact", "ensemble", "chaos")
 
 
 def compile_kernel(kernel: Kernel, method: str | None = None) -> dict:
@@ -569,7 +607,7 @@ def compile_kernel(kernel: Kernel, method: str | None = None) -> dict:
         _check_manifest(engine.cache.files(), folder / "sums.json", "the engine")
     cached = bool(engine.cache.files())
     try:
-        result = engine.prepare(names, loops, lazy=method == "exact")
+        result = engine.prepare(names, loops, lazy=method in LAZY_METHODS)
     except Exception as exc:       # a damaged cache entry that slipped past the manifest
         if not cached:
             raise
@@ -577,7 +615,7 @@ def compile_kernel(kernel: Kernel, method: str | None = None) -> dict:
               f"({type(exc).__name__}: {str(exc)[:120]}): compiling it again")
         _clear(engine.cache.files(), folder / "sums.json")
         _reset_engine(names, loops)
-        result = engine.prepare(names, loops, lazy=method == "exact")
+        result = engine.prepare(names, loops, lazy=method in LAZY_METHODS)
     if result == "miss" and folder is not None:
         _write_manifest(engine.cache.files(), folder / "sums.json")
         engine.cache.kept_for_now(f"the engine ({', '.join(names)})")
