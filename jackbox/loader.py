@@ -197,9 +197,7 @@ def binding_parts(model_text: str, flight_text: str | None = None) -> dict[str, 
 @functools.lru_cache(maxsize=16)
 def _binding_parts(model_text: str, flight_text: str, digest: str) -> dict[str, str]:
     """(binding_parts, kept for the texts a process sees again)"""
-    present = _functions_of(model_text)
-    stubs = "".join("\n\n" + OPTIONAL[name] for name in OPTIONAL if name not in present)
-    model_blocks, flight_blocks = _blocks(model_text + stubs), _blocks(flight_text)
+    model_blocks, flight_blocks = _blocks(_with_stubs(model_text)), _blocks(flight_text)
     defined = {name: i for i, (names, _, _) in enumerate(model_blocks + flight_blocks) for name in names}
     blocks = model_blocks + flight_blocks
     parts = {}
@@ -263,7 +261,7 @@ def _blocks(text: str) -> list[tuple[set, str, set]]:
     for node in ast.parse(text).body:
         if isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant):
             continue
-        if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+        if isinstance(node, ast.FunctionDef):
             names = {node.name}
         elif isinstance(node, (ast.Import, ast.ImportFrom)):
             names = {(alias.asname or alias.name).split(".")[0] for alias in node.names}
@@ -281,12 +279,16 @@ def _blocks(text: str) -> list[tuple[set, str, set]]:
 
 def model_module(model_file: Path, model_text: str) -> ModuleType:
     """The generated model as a plain module (its constants and Python functions), with stubs for what it lacks."""
-    present = _functions_of(model_text)
-    stubs = "".join("\n\n" + OPTIONAL[name] for name in OPTIONAL if name not in present)
     module = ModuleType(f"jackbox_model_{_ident(model_file.stem)}")
     module.__file__ = str(model_file)
-    exec(compile(model_text + stubs, str(model_file), "exec"), module.__dict__)
+    exec(compile(_with_stubs(model_text), str(model_file), "exec"), module.__dict__)
     return module
+
+
+def _with_stubs(model_text: str) -> str:
+    """A generated model's text with a stub for each function of OPTIONAL it lacks."""
+    present = _functions_of(model_text)
+    return model_text + "".join("\n\n" + OPTIONAL[name] for name in OPTIONAL if name not in present)
 
 
 def part_path(name: str, text: str) -> Path:

@@ -281,19 +281,18 @@ def start_binding(todo: dict) -> list[str]:
         cool_binder()
         return []
     process, _warm = _warm, None
+    cost = {name: PART_COST.get(name, 0.5) for name in todo}
     mine = FIRST_COMPILE
     theirs = 0.0 if process is not None else 0.5 + FIRST_COMPILE     # (a helper's start: Python, Numba)
     share = []
-    for name in sorted(todo, key=lambda n: -PART_COST.get(n, 0.5)):
+    for name in sorted(todo, key=lambda n: -cost[n]):
         if theirs < mine:
             share.append(name)
-            theirs += PART_COST.get(name, 0.5)
+            theirs += cost[name]
         else:
-            mine += PART_COST.get(name, 0.5)
+            mine += cost[name]
     paths = [str(Path(todo[name]).resolve()) for name in share]
-    if not share:
-        pass
-    elif process is not None:
+    if share and process is not None:
         try:                # (lines into an empty pipe: never blocks)
             process.stdin.write("".join(f"{path}\n" for path in paths).encode())
         except OSError:     # it ended early: start another

@@ -1,13 +1,15 @@
 """The free-flight hot path, compiled with each model (the only per-model code besides its functions).
 
-This file is not imported as it stands: :mod:`jackbox.loader` appends its
-text to a generated model's, so that these functions call the model's tuple
-functions (``accel_s``, ``accel_time_s``, ``phi_s``, ``box_motion_s``) and
-constants (``N_DOF``, ``N_CONTACT``, ``PRESCRIBED``, ``HAS_GROUND``) as
-globals of the same file, inlined, with the state in registers. The binding
-compiles :func:`fly` and :func:`clearance` as ``cfunc`` values of the
-signatures in :mod:`jackbox.engine.records`; the engine calls them through
-the model record.
+This file is not imported as it stands: :func:`jackbox.loader.binding_parts`
+copies the pieces of it a function reaches into that function's binding
+part, after the generated model's tuple functions (``accel_s``,
+``accel_time_s``, ``phi_s``, ``box_motion_s``) and constants (``N_DOF``,
+``N_CONTACT``, ``PRESCRIBED``, ``HAS_GROUND``) it calls, so that they are
+globals of the same file, inlined, with the state in registers. :func:`fly`
+and :func:`free_step` are compiled together (one part, "flight"),
+:func:`clearance` alone, as ``cfunc`` values of the signatures in
+:mod:`jackbox.engine.records`; the engine calls them through the model
+record.
 
 Far from every wall the exact loop hands over to :func:`fly`, which
 integrates on floats only and looks at no gap row: the broad phase
@@ -134,6 +136,5 @@ def free_step(t, q_in, qd_in, dt, p, q_out, qd_out):
         qd_out[d] = vn[d]
 
 
-#: what the binding compiles: inlined helpers, then the functions the engine calls
+#: the helpers a binding part inlines at Numba's level (``inline="always"``)
 INLINED = ("rk4_stages", "grid_step", "clearance_s")
-ENTRIES = ("clearance", "free_step", "fly")
