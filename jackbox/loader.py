@@ -448,7 +448,7 @@ class Kernel:
                 return i, n_rec, n_ev, status
             # a step needs a stage compiled on first need: compile it, then go on from that step
             if log and not all(engine.ready(name) for name in engine.LAZY):
-                log(f"compiling the engine's {' and '.join(engine.LAZY)} stages for held contacts "
+                log(f"compiling the engine's {', '.join(engine.LAZY)} stages for held contacts "
                     f"at t = {t0 + i * dt:g} s (first use only) ...")
             if engine.prepare((), ("exact",)) == "miss":
                 engine.cache.kept_for_now("a stage of the engine")

@@ -85,6 +85,25 @@ def test_record_every_keeps_every_kth_step_and_the_last():
     np.testing.assert_array_equal(thin.energy, full.energy[idx])
 
 
+def test_sampling_does_not_change_a_resting_run():
+    # drop at e = 0 comes to rest early (box on the ground, jack on its floor):
+    # from then on the exact loop runs its quiet held steps in one call, which
+    # stops at every sample; sampling every step, every 7th or only the ends
+    # must give the same numbers, bit for bit
+    params = {"e": 0.0, "e_ground": 0.0}
+    full = jackbox.simulate("drop", t_end=3.0, params=params)
+    thin = jackbox.simulate("drop", t_end=3.0, params=params, record_every=7)
+    ends = jackbox.simulate("drop", t_end=3.0, params=params, record_every=10**6)
+    assert len(full.held) == 4 and full.contact_t.max() < 1.5
+    last = len(full.t) - 1
+    idx = list(range(0, last + 1, 7)) + ([last] if last % 7 else [])
+    for got, at in ((thin, idx), (ends, [0, last])):
+        np.testing.assert_array_equal(got.q, full.q[at])
+        np.testing.assert_array_equal(got.qd, full.qd[at])
+        for key in ("impact_t", "contact_t", "contact_event"):
+            np.testing.assert_array_equal(getattr(got, key), getattr(full, key), err_msg=key)
+
+
 def test_elastic_unforced_scene_keeps_its_energy():
     traj = jackbox.simulate("drop")   # e = 1, gravity only
     assert len(traj.impact_t) > 20

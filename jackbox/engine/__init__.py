@@ -43,9 +43,9 @@ from . import cache
 
 cache.install()          # before any engine module is imported: each fixes its cache folder when decorated
 
-from .records import (TABLE, CROSSING, EXACT, FALLBACK_STEP, NAIVE, RELEASE_AT, STEP, UPDATE, DONE, FALLBACK,  # noqa: E402
-                      IMPACT_LOG_FULL, MISSING, NEED_FALLBACK, NEED_RELEASE, IMPULSE, MAX_EVENTS, MODE_SLOTS,
-                      NONFINITE, RELEASE, REST, STALLED, T_AREST, T_BOXV, T_EVENT,
+from .records import (TABLE, CROSSING, EXACT, FALLBACK_STEP, HOLD, NAIVE, RELEASE_AT, STEP, UPDATE, DONE,  # noqa: E402
+                      FALLBACK, IMPACT_LOG_FULL, MISSING, NEED_FALLBACK, NEED_HOLD, NEED_RELEASE, IMPULSE, MAX_EVENTS,
+                      MODE_SLOTS, NONFINITE, RELEASE, REST, STALLED, T_AREST, T_BOXV, T_EVENT,
                       T_GAP, T_RBOX, T_RJACK, T_SPEED, T_VREST, T_WALL, WARN_LCP, WARN_LOCATE, WARNING, Events, F8, I1,
                       I2, I8, Model, Samples, Setup, SetupType, SIGNATURES, SIZES, V1, V2)
 
@@ -66,17 +66,18 @@ LOOPS = {
     "crossing": ("events", "first_crossing", CROSSING, ()),
     "release": ("events", "first_release", RELEASE_AT, ()),
     "fallback": ("fallback", "fallback_step", FALLBACK_STEP, ()),
-    "exact": ("loop", "integrate_exact", EXACT, ("step", "update", "crossing", "release", "fallback")),
+    "hold": ("loop", "hold", HOLD, ()),
+    "exact": ("loop", "integrate_exact", EXACT, ("step", "update", "crossing", "release", "fallback", "hold")),
     "naive": ("loop", "integrate", NAIVE, ()),
 }
 _loops: dict = {}
 #: the stages compiled on first need only: name -> its bit in Stages.missing (see jackbox.engine.loop)
-LAZY = {"release": NEED_RELEASE, "fallback": NEED_FALLBACK}
+LAZY = {"release": NEED_RELEASE, "fallback": NEED_FALLBACK, "hold": NEED_HOLD}
 #: what each part costs to compile, in seconds on the 2-core machine of benchmarks/results/compile.md, each
 #: compiled alone after the model (benchmarks/compile_parts.py times them in a row): only to share the parts
 #: out between two processes
 COST = {"exact": 11.0, "update": 8.5, "fallback": 8.0, "crossing": 6.0, "naive": 4.5, "step": 3.6, "release": 1.6,
-        "run_members": 7.8, "run_twin_members": 7.0, "set_up_members": 7.1, "run_exact": 0.4, "run_naive": 0.3,
+        "hold": 3.0, "run_members": 7.8, "run_twin_members": 7.0, "set_up_members": 7.1, "run_exact": 0.4, "run_naive": 0.3,
         "fill_tolerances": 0.2}
 #: a part -> the helper process compiling it now (see start)
 _helpers: dict = {}

@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .records import FLAGS, HIT, IDX, LAM, LR, LX, MAX_ENUMERATED, PERM, R, RHS, VT, WARN_LCP, WINV, Y
+from .records import FLAGS, HIT, IDX, LAM, LR, LX, MAX_ENUMERATED, R, RHS, RINV, VT, WARN_LCP, WINV, Y
 
 
 @njit(cache=True, no_cpython_wrapper=True, inline="always")
@@ -85,17 +85,17 @@ RANK_TOL = 1e-11
 PGS_SWEEPS, PGS_TOL = 20000, 1e-12
 
 
-@njit(cache=True, no_cpython_wrapper=True)
-def factor_psd(A, m, ws):
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
+def factor_rows(A, m, L, rinv):
     """Factor ``A[:m, :m]``, symmetric positive semi-definite, revealing its rank; returns the rank.
 
-    Cholesky, ``A = L L^T`` into ``ws.lu``, row after row in the contacts'
-    order, skipping a row that depends on those before it: what is left of
-    its diagonal once they are eliminated is below RANK_TOL of the diagonal
-    (a redundant contact set: a square jack flush in a corner touches four
-    times with three degrees of freedom). Its column of L is zero and
-    ``ws.k[PERM]`` marks it (0; 1 for an independent row). :func:`solve_factored`
-    then gives its unknown 0, so the others carry the whole answer: for a
+    Cholesky, ``A = L L^T`` into L, row after row in the contacts' order,
+    skipping a row that depends on those before it: what is left of its
+    diagonal once they are eliminated is below RANK_TOL of the diagonal (a
+    redundant contact set: a square jack flush in a corner touches four times
+    with three degrees of freedom). Its column of L is zero and its entry of
+    ``rinv`` (the reciprocals of L's diagonal) is 0, so :func:`solve_rows`
+    gives its unknown 0 and the others carry the whole answer: for a
     consistent system (held contacts of one rigid motion) that solves it
     exactly, where a diagonal shift would leave a residual. In a fixed order,
     not pivoted, so the forces it gives move continuously while the same rows
@@ -103,51 +103,60 @@ def factor_psd(A, m, ws):
     set's load from one contact to another in a jump, which event location
     would take for a release). One factorization serves several right-hand
     sides (a projection's gaps and rates).
+
+    Inlined where it is called, on the arrays themselves: a call that passed
+    the scratch record would pass each of its arrays' fields (some hundred
+    words), which cost more than the factorization of a few rows.
     """
-    L, basic = ws.lu, ws.k[PERM]
     rank = 0
     for j in range(m):
         d = A[j, j]
         for k in range(j):
             d -= L[j, k] * L[j, k]
         if d > RANK_TOL * A[j, j]:
-            basic[j] = 1
             rank += 1
-            ljj = math.sqrt(d)
-            L[j, j] = ljj
+            r = 1.0 / math.sqrt(d)
+            rinv[j] = r
             for i in range(j + 1, m):
                 s = A[i, j]
                 for k in range(j):
                     s -= L[i, k] * L[j, k]
-                L[i, j] = s / ljj
+                L[i, j] = s * r
         else:
-            basic[j] = 0
-            L[j, j] = 1.0
+            rinv[j] = 0.0
             for i in range(j + 1, m):
                 L[i, j] = 0.0
     return rank
 
 
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
+def solve_rows(b, m, L, rinv, y, x):
+    """``x`` for ``A x = b`` with A factored by :func:`factor_rows`; the dependent rows' unknowns are 0.
+
+    Their reciprocal is 0 and their column of L too, so no row needs a test.
+    """
+    for j in range(m):
+        s = b[j]
+        for k in range(j):
+            s -= L[j, k] * y[k]
+        y[j] = s * rinv[j]
+    for j in range(m - 1, -1, -1):
+        s = y[j]
+        for k in range(j + 1, m):
+            s -= L[k, j] * x[k]
+        x[j] = s * rinv[j]
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def factor_psd(A, m, ws):
+    """:func:`factor_rows` into the scratch record (``ws.lu``, ``ws.c[RINV]``); returns the rank."""
+    return factor_rows(A, m, ws.lu, ws.c[RINV])
+
+
 @njit(cache=True, no_cpython_wrapper=True)
 def solve_factored(b, m, rank, x, ws):
-    """``x`` for ``A x = b`` with A factored by :func:`factor_psd`; the dependent rows' unknowns are 0."""
-    L, basic, y = ws.lu, ws.k[PERM], ws.c[Y]
-    for j in range(m):
-        if basic[j]:
-            s = b[j]
-            for k in range(j):
-                s -= L[j, k] * y[k]
-            y[j] = s / L[j, j]
-        else:
-            y[j] = 0.0
-    for j in range(m - 1, -1, -1):
-        if basic[j]:
-            s = y[j]
-            for k in range(j + 1, m):
-                s -= L[k, j] * x[k]
-            x[j] = s / L[j, j]
-        else:
-            x[j] = 0.0
+    """:func:`solve_rows` with the factorization :func:`factor_psd` left in the scratch record."""
+    solve_rows(b, m, ws.lu, ws.c[RINV], ws.c[Y], x)
 
 
 @njit(cache=True)

@@ -17,11 +17,17 @@ their machine code is generated once, not again inside every entry point
 that runs them (Numba would link and re-optimise the whole call tree into
 each caller). For the same reason the exact loop reaches its heavy stages
 (the integrator's step, the contact update, the two event searches, the
-fallback) through a :class:`~jackbox.engine.records.Stages` record of
-function values. Two of them are compiled on first need only: a run with no
-held contact never needs the release search, nor one the exact method
-resolves throughout the fallback; the loop then hands the step back
-(MISSING) and the caller compiles them and calls again.
+fallback, the held loop) through a :class:`~jackbox.engine.records.Stages`
+record of function values. Three of them are compiled on first need only: a
+run with no held contact never needs the release search nor the held loop,
+nor one the exact method resolves throughout the fallback; the loop then
+hands the step back (MISSING) and the caller compiles them and calls again.
+
+Where contacts are held and nothing happens to them, :func:`hold` takes the
+steps in one call, as the model's ``fly`` does in free flight: a step through
+:func:`advance` makes some ten calls that pass the model and scratch records
+(each of their fields a word of its own, about 100 ns a call), more than the
+held step's own solves.
 """
 
 import math
@@ -30,10 +36,12 @@ import numpy as np
 from numba import njit
 
 from .impact import resolve_impacts
-from .modes import log_event, project_rest, rest_index
-from .records import (DONE, EXACT_AT, FALLBACK, FLAGS, GA, GB, HANDOFF, IMPACT_LOG_FULL, MAX_EVENTS, MISSING, MODE_AT,
-                      MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT, NEED_FALLBACK, NEED_RELEASE, NONFINITE, Q0, QB, QD0,
-                      QDB, QDS, QS, RELEASE, RIDX, SET_AT, STAGES_AT, T_EVENT, WARN_LCP, WARN_LOCATE, WARNING,
+from .integrator import rk4_rows
+from .modes import log_event, project_rest, project_rows, rest_index
+from .records import (BIAS, DONE, EXACT_AT, FALLBACK, FLAGS, GA, GB, GS, HANDOFF, IMPACT_LOG_FULL, LAM, LS, MAX_EVENTS,
+                      MISSING, MODE_AT, MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT, NEED_FALLBACK, NEED_HOLD,
+                      NEED_RELEASE, NONFINITE, Q0, QB, QD0, QDB, QDS, QS, RELEASE, RHS, RIDX, RINV, SET_AT, STAGES_AT,
+                      T_AREST, T_EVENT, WARN_LCP, WARN_LOCATE, WARNING, WINV,
                       ZENO_PASSES, ZENO_SPAN, Events, ExactType, ModelType, NaiveType, Samples, StagesType, borrow,
                       from_table, keep, scratch)
 from .gaps import step_reach
@@ -209,6 +217,62 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
 
 
 @njit(cache=True, no_cpython_wrapper=True)
+def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws):
+    """Steps i, i+1, ... with the m persistent contacts held, while nothing happens in them.
+
+    The resting counterpart of the model's ``fly``: one call for a stretch of
+    quiet steps, each the same arithmetic as :func:`advance` on a step with no
+    event (:func:`~.integrator.rk4`, the release screen of
+    :func:`~.events.first_release`, the near test of
+    :func:`~.events.first_crossing`, one pass of :func:`~.modes.project_rest`),
+    on the scratch's arrays taken out once: each of those calls would pass
+    the model and scratch records, some hundred and fifty words, which cost
+    more than a held step's own solves. Stops at i_stop, or before a step
+    whose forces might pull (any stage's force below the release floor),
+    whose free contacts come within its reach, or whose end is not finite:
+    :func:`advance` takes that one. The gaps at the state reached are left in
+    ``ws.c[GA]``. Returns ``(i, trial)``: trial 1 when the step it stopped
+    before is already integrated (``ws.n[QB]``, ``ws.n[QDB]``, its gaps in
+    ``ws.c[GB]`` and its forces in ``ws.c[LS:]``), as :func:`advance` takes it.
+    """
+    n, C = model.n_dof, model.n_contact
+    ridx, jac, A, L, w = ws.k[RIDX], ws.jac, ws.A, ws.lu, ws.work
+    winv, bias, g, rinv, y, lam = ws.n[WINV], ws.c[BIAS], ws.c[GS], ws.c[RINV], ws.c[RHS], ws.c[LAM]
+    ls = ws.c[LS:LS + 4]
+    qb, qdb = ws.n[QB], ws.n[QDB]
+    ga, gb = ws.c[GA], ws.c[GB]
+    half = 0.5 * tol[T_EVENT]
+    deep = half + tol[T_EVENT]
+    arest = tol[T_AREST]
+    model.inverse_mass(p, winv)
+    model.phi(t0 + i * dt, q, p, ga)
+    while i < i_stop:
+        ta = t0 + i * dt
+        tb = t0 + (i + 1) * dt
+        rk4_rows(model, ta, q, qd, tb - ta, p, qb, qdb, m, w, ls, ridx, jac, winv, bias, A, L, rinv, y, lam)
+        model.phi(tb, qb, p, gb)
+        for j in range(m):
+            floor = -arest / A[j, j]
+            for s in range(4):
+                if not ls[s, j] >= floor:
+                    return i, 1
+        band = step_reach(qd, qdb, tb - ta, tol)
+        for k in range(C):
+            if not rest[k] and min(ga[k], gb[k]) + deep < band:
+                return i, 1
+        for d in range(n):
+            if not (math.isfinite(qb[d]) and math.isfinite(qdb[d])):
+                return i, 1
+        for d in range(n):
+            q[d] = qb[d]
+            qd[d] = qdb[d]
+        project_rows(model, tb, q, qd, p, m, half, np.int64(1), ridx, jac, winv, g, A, L, rinv, y, lam)
+        model.phi(tb, q, p, ga)
+        i += 1
+    return i, 0
+
+
+@njit(cache=True, no_cpython_wrapper=True)
 def enter_fallback(t, rest, C, log, n_ev):
     """Log the hand-over to the fallback at t: the persistent contacts are let go (the fallback has none)."""
     n_ev = log_event(t, 1, np.int64(FALLBACK), log, n_ev)
@@ -277,7 +341,31 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
     capacity = log.t.shape[0]
     while i < i_end:
         have_trial = False
-        if m == 0 and rest[C + MODE_AT] == 0:
+        held_trial = False
+        if m > 0 and rest[C + MODE_AT] == 0:
+            # Resting, nothing happening: the held steps in one call.
+            if stages.missing & NEED_HOLD:
+                return i, n_rec, n_ev, MISSING
+            i_stop = min(i_end, next_rec)
+            i_held, trial_left = stages.hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws)
+            held_trial = trial_left == 1
+            ga_ok = True
+            if i_held > i:
+                i = i_held
+                for d in range(n):
+                    if not (math.isfinite(q[d]) and math.isfinite(qd[d])):
+                        return i, n_rec, n_ev, NONFINITE
+                clear = model.clearance(t0 + i * dt, q, p, tol)
+                if i == next_rec or i == n_total:
+                    record(model, t0 + i * dt, q, qd, p, n_rec, out, ws.box)
+                    n_rec += 1
+                    if i == next_rec:
+                        next_rec += record_every
+                if i == i_end:
+                    break
+            if not held_trial:    # stopped only to record: hold on
+                continue
+        elif m == 0 and rest[C + MODE_AT] == 0:
             # Free flight far from every wall: the lean loop, on floats only.
             i_stop = min(i_end, next_rec)
             i_fly, clear = model.fly(t0, dt, i, i_stop, q, qd, p, tol, clear, qb, qdb)
@@ -319,7 +407,7 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
                 model.phi(t, q, p, ga)
                 ga_ok = True
             quiet = False
-            trial = False
+            trial = held_trial
             if m == 0:
                 if not have_trial:
                     model.free_step(t, q, qd, dt, p, qb, qdb)

@@ -3,7 +3,7 @@
 Between events the state follows the dynamics with the persistent contacts R
 held closed: ``qdd = M^-1 f + M^-1 J_R^T lam``, with ``lam`` solving
 ``(J_R M^-1 J_R^T) lam = -(J_R M^-1 f + gap_bias_R)`` (gap accelerations
-zero), by a rank-revealing solve (:func:`~.impact.solve_psd`): every held
+zero), by a rank-revealing solve (:func:`~.impact.factor_rows`): every held
 row is held, also on a redundant set, where the forces are not unique.
 
 Contacts are held at the level where events are located, ``gap = -T_EVENT/2``
@@ -23,9 +23,9 @@ off the held contacts after each step.
 import numpy as np
 from numba import njit
 
-from .impact import contact_matrix, factor_psd, solve_factored, solve_lcp
+from .impact import contact_matrix, factor_rows, solve_lcp, solve_rows
 from .records import (ACC, BIAS, CAND, FLAGS, GS, HIT, IMPULSE, LAM, NEAR, NEWREST, RELEASE, REST, RHS,
-                      RIDX, T_AREST, T_EVENT, T_GAP, T_VREST, VB, WINV)
+                      RIDX, RINV, T_AREST, T_EVENT, T_GAP, T_VREST, VB, WINV)
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -71,26 +71,41 @@ def accel(model, t, q, qd, p, m, a, ws):
 def contact_accel(model, t, q, qd, p, m, a, ws):
     """Accelerations with the m persistent contacts (``ws.k[RIDX]``) held closed.
 
-    Fills a; leaves the contact forces in ``ws.c[LAM, :m]`` and ``ws.jac = phi_q``.
+    Fills a; leaves the contact forces in ``ws.c[LAM, :m]``, their matrix in
+    ``ws.A`` and ``ws.jac = phi_q``.
     """
-    model.accel(t, q, qd, p, a)
     if m == 0:
+        model.accel(t, q, qd, p, a)
         return
-    n = model.n_dof
-    ridx, jac, A = ws.k[RIDX], ws.jac, ws.A
     winv = ws.n[WINV]
     model.inverse_mass(p, winv)
+    held_accel(model, t, q, qd, p, m, a, ws.k[RIDX], ws.jac, winv, ws.c[BIAS], ws.A, ws.lu, ws.c[RINV], ws.c[RHS],
+               ws.c[LAM])
+
+
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
+def held_accel(model, t, q, qd, p, m, a, ridx, jac, winv, bias, A, L, rinv, y, lam):
+    """:func:`contact_accel` on the arrays themselves, ``winv = diag(M^-1)`` already filled.
+
+    The held step's own coding (inlined into :func:`jackbox.engine.integrator.rk4_rows`):
+    a call that passed the scratch and model records would pass each of
+    their fields, some hundred and fifty words, about 100 ns a call. y: the
+    right-hand side, then the forward substitution's unknowns; lam: the
+    forces; L, rinv: the factorization (:func:`~.impact.factor_rows`).
+    """
+    model.accel(t, q, qd, p, a)
     model.phi_q(t, q, p, jac)
-    bias, rhs, lam = ws.c[BIAS], ws.c[RHS], ws.c[LAM]
     model.gap_bias(t, q, qd, p, bias)
+    n = model.n_dof
     contact_matrix(jac, winv, ridx, m, A)
     for i in range(m):
         k = ridx[i]
         s = bias[k]
         for d in range(n):
             s += jac[k, d] * a[d]
-        rhs[i] = -s
-    solve_factored(rhs, m, factor_psd(A, m, ws), lam, ws)
+        y[i] = -s
+    factor_rows(A, m, L, rinv)
+    solve_rows(y, m, L, rinv, y, lam)
     add_response(jac, winv, ridx, m, lam, n, a)
 
 
@@ -99,32 +114,36 @@ def project_rest(model, t, q, qd, p, m, level, passes, ws):
     """Put the persistent contacts back on gap = -level and rate = 0 (removes RK4's drift).
 
     The smallest correction in the metric of M onto every held row (a
-    redundant set included: :func:`~.impact.factor_psd`), by ``passes``
+    redundant set included: :func:`~.impact.factor_rows`), by ``passes``
     Newton passes on the gaps: after a step of the held dynamics the drift is
     O(dt^5) and one pass leaves its square; after an event, two. The rates
     are projected with the last pass's factorization: the rows it was taken
     at differ from the final ones by the last correction, whose effect on the
     rates is of its square too.
     """
-    n = model.n_dof
-    ridx, jac, A = ws.k[RIDX], ws.jac, ws.A
     winv = ws.n[WINV]
     model.inverse_mass(p, winv)
-    g, rhs, x = ws.c[GS], ws.c[RHS], ws.c[LAM]
-    rank = 0
+    project_rows(model, t, q, qd, p, m, level, passes, ws.k[RIDX], ws.jac, winv, ws.c[GS], ws.A, ws.lu, ws.c[RINV],
+                 ws.c[RHS], ws.c[LAM])
+
+
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
+def project_rows(model, t, q, qd, p, m, level, passes, ridx, jac, winv, g, A, L, rinv, y, x):
+    """:func:`project_rest` on the arrays themselves (``winv`` filled), like :func:`held_accel`."""
+    n = model.n_dof
     for _ in range(passes):
         model.phi(t, q, p, g)
         model.phi_q(t, q, p, jac)
         contact_matrix(jac, winv, ridx, m, A)
-        rank = factor_psd(A, m, ws)
+        factor_rows(A, m, L, rinv)
         for i in range(m):
-            rhs[i] = -(g[ridx[i]] + level)
-        solve_factored(rhs, m, rank, x, ws)
+            y[i] = -(g[ridx[i]] + level)
+        solve_rows(y, m, L, rinv, y, x)
         add_response(jac, winv, ridx, m, x, n, q)
     model.gap_rate(t, q, qd, p, g)
     for i in range(m):
-        rhs[i] = -g[ridx[i]]
-    solve_factored(rhs, m, rank, x, ws)
+        y[i] = -g[ridx[i]]
+    solve_rows(y, m, L, rinv, y, x)
     add_response(jac, winv, ridx, m, x, n, qd)
 
 

@@ -30,6 +30,7 @@ MISSING = 5             #: a stage this step needs is not compiled (Stages.missi
 # bits of Stages.missing: the stages compiled on first need only (a run with no held contact never releases one)
 NEED_RELEASE = 1
 NEED_FALLBACK = 2
+NEED_HOLD = 4
 
 # kinds of contact events in the event log
 IMPULSE = 0             #: an impulse acted on the contact
@@ -133,19 +134,20 @@ SetupType = types.NamedTuple([V1, V1, V1, V1, I1, V1, I8, I1, I1, V1, V1, I8, I8
 # forces, phi_t, the LCP's right-hand side and unknowns, the dense solver's
 # copy, the forces at both ends of a step, the event level of each free
 # contact in a step (gap + level = 0 at its event), a solver's unknowns, the
-# persistent contacts' forces at the integrator's four stages (LS + stage)
-GA, GB, GS, VA, VB, BIAS, RHS, LAM, VT, LR, LX, R, LAMA, LAMB, LEV, Y, LS = range(17)
+# reciprocals of a factorization's diagonal, the persistent contacts' forces at
+# the integrator's four stages (LS + stage)
+GA, GB, GS, VA, VB, BIAS, RHS, LAM, VT, LR, LX, R, LAMA, LAMB, LEV, Y, RINV, LS = range(18)
 SC = LS + 4
 # rows of Scratch.n, (SN, n_dof) floats: the trial state at a step's end, the
 # state at a trial time, diag(M^-1), accelerations, the state at a step's start
 QB, QDB, QS, QDS, WINV, AF, ACC, Q0, QD0 = range(9)
 SN = 9
 # rows of Scratch.k, (SK, n_contact) integers: the persistent contacts, contacts
-# near, hit and at rest, the LCP's active set, the new persistent set, the
-# rank-revealing solver's permutation, flags (slot 0: warnings pending, a WARN_* bit mask;
-# slot 1: persistent contacts whose force pulls, a bit mask, for the next contact update)
-RIDX, NEAR, HIT, CAND, IDX, NEWREST, PERM, FLAGS = range(8)
-SK = 8
+# near, hit and at rest, the LCP's active set, the new persistent set, flags (slot 0:
+# warnings pending, a WARN_* bit mask; slot 1: persistent contacts whose force pulls, a
+# bit mask, for the next contact update)
+RIDX, NEAR, HIT, CAND, IDX, NEWREST, FLAGS = range(7)
+SK = 7
 
 Scratch = namedtuple("Scratch", ["work", "jac", "c", "n", "k", "rest0", "A", "sub", "lu", "ext", "box"])
 ScratchType = types.NamedTuple([V2, V2, V2, V2, types.Array(I8, 2, "C"), I1, V2, V2, V2, V1, V1], Scratch)
@@ -187,10 +189,13 @@ UpdateType = types.FunctionType(UPDATE)
 #: one step of the fallback: (model, update, t, h, q, qd, p, tol, rest, ws, log, n_ev) -> (n_ev, m)
 FALLBACK_STEP = types.UniTuple(I8, 2)(ModelType, UpdateType, F8, F8, V1, V1, V1, V1, I1, ScratchType, EventsType,
                                       I8)
+#: quiet steps with the persistent contacts held: (model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws)
+#: -> (step reached, whether the trial of the step it stopped before is in the scratch)
+HOLD = types.UniTuple(I8, 2)(ModelType, F8, F8, I8, I8, V1, V1, V1, V1, I1, I8, ScratchType)
 #: the heavy stages of the exact loop, as function values, and which of them are not compiled (NEED_* bits)
-Stages = namedtuple("Stages", ["step", "update", "crossing", "release", "fallback", "missing"])
+Stages = namedtuple("Stages", ["step", "update", "crossing", "release", "fallback", "hold", "missing"])
 StagesType = types.NamedTuple([StepType, UpdateType, types.FunctionType(CROSSING), types.FunctionType(RELEASE_AT),
-                               types.FunctionType(FALLBACK_STEP), I8], Stages)
+                               types.FunctionType(FALLBACK_STEP), types.FunctionType(HOLD), I8], Stages)
 
 #: the exact loop: (model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every,
 #: out, n_rec, log, n_ev) -> (step reached, n_rec, n_ev, status)
