@@ -85,7 +85,7 @@ RANK_TOL = 1e-11
 PGS_SWEEPS, PGS_TOL = 20000, 1e-12
 
 
-@njit(cache=True, no_cpython_wrapper=True, inline="always")
+@njit(cache=True, no_cpython_wrapper=True)
 def factor_rows(A, m, L, rinv):
     """Factor ``A[:m, :m]``, symmetric positive semi-definite, revealing its rank; returns the rank.
 
@@ -104,9 +104,9 @@ def factor_rows(A, m, L, rinv):
     would take for a release). One factorization serves several right-hand
     sides (a projection's gaps and rates).
 
-    Inlined where it is called, on the arrays themselves: a call that passed
-    the scratch record would pass each of its arrays' fields (some hundred
-    words), which cost more than the factorization of a few rows.
+    On the arrays themselves: a call that passed the scratch record would
+    pass each of its arrays' fields (some hundred words), which cost more
+    than the factorization of a few rows.
     """
     rank = 0
     for j in range(m):
@@ -129,7 +129,7 @@ def factor_rows(A, m, L, rinv):
     return rank
 
 
-@njit(cache=True, no_cpython_wrapper=True, inline="always")
+@njit(cache=True, no_cpython_wrapper=True)
 def solve_rows(b, m, L, rinv, y, x):
     """``x`` for ``A x = b`` with A factored by :func:`factor_rows`; the dependent rows' unknowns are 0.
 

@@ -40,7 +40,7 @@ def rk4(model, t, q, qd, dt, p, q_out, qd_out, m, ws):
              ws.c[BIAS], ws.A, ws.lu, ws.c[RINV], ws.c[RHS], ws.c[LAM])
 
 
-@njit(cache=True, no_cpython_wrapper=True, inline="always")
+@njit(cache=True, no_cpython_wrapper=True)
 def rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, bias, A, L, rinv, y, lam):
     """:func:`rk4` on the arrays themselves (``winv`` filled where m > 0), like :func:`~.modes.held_accel`.
 

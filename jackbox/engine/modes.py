@@ -83,11 +83,11 @@ def contact_accel(model, t, q, qd, p, m, a, ws):
                ws.c[LAM])
 
 
-@njit(cache=True, no_cpython_wrapper=True, inline="always")
+@njit(cache=True, no_cpython_wrapper=True)
 def held_accel(model, t, q, qd, p, m, a, ridx, jac, winv, bias, A, L, rinv, y, lam):
     """:func:`contact_accel` on the arrays themselves, ``winv = diag(M^-1)`` already filled.
 
-    The held step's own coding (inlined into :func:`jackbox.engine.integrator.rk4_rows`):
+    The held step's own coding (called by :func:`jackbox.engine.integrator.rk4_rows`):
     a call that passed the scratch and model records would pass each of
     their fields, some hundred and fifty words, about 100 ns a call. y: the
     right-hand side, then the forward substitution's unknowns; lam: the
@@ -127,7 +127,7 @@ def project_rest(model, t, q, qd, p, m, level, passes, ws):
                  ws.c[RHS], ws.c[LAM])
 
 
-@njit(cache=True, no_cpython_wrapper=True, inline="always")
+@njit(cache=True, no_cpython_wrapper=True)
 def project_rows(model, t, q, qd, p, m, level, passes, ridx, jac, winv, g, A, L, rinv, y, x):
     """:func:`project_rest` on the arrays themselves (``winv`` filled), like :func:`held_accel`."""
     n = model.n_dof
