@@ -342,20 +342,29 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
     while i < i_end:
         have_trial = False
         held_trial = False
-        if m > 0 and rest[C + MODE_AT] == 0:
-            # Resting, nothing happening: the held steps in one call.
-            if stages.missing & NEED_HOLD:
+        if rest[C + MODE_AT] == 0:
+            # A stretch of quiet steps in one call: free flight far from every wall (the
+            # model's lean loop, on floats only), or resting with nothing happening to the
+            # held contacts. Each stops before a step that needs care, its trial in qb, qdb.
+            if m > 0 and stages.missing & NEED_HOLD:
                 return i, n_rec, n_ev, MISSING
             i_stop = min(i_end, next_rec)
-            i_held, trial_left = stages.hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws)
-            held_trial = trial_left == 1
-            ga_ok = True
-            if i_held > i:
-                i = i_held
-                for d in range(n):
-                    if not (math.isfinite(q[d]) and math.isfinite(qd[d])):
-                        return i, n_rec, n_ev, NONFINITE
-                clear = model.clearance(t0 + i * dt, q, p, tol)
+            if m == 0:
+                i_quiet, clear = model.fly(t0, dt, i, i_stop, q, qd, p, tol, clear, qb, qdb)
+                have_trial = True
+                if i_quiet > i:
+                    ga_ok = False
+            else:
+                i_quiet, trial_left = stages.hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws)
+                held_trial = trial_left == 1
+                ga_ok = True
+                if i_quiet > i:
+                    for d in range(n):
+                        if not (math.isfinite(q[d]) and math.isfinite(qd[d])):
+                            return i_quiet, n_rec, n_ev, NONFINITE
+                    clear = model.clearance(t0 + i_quiet * dt, q, p, tol)
+            if i_quiet > i:
+                i = i_quiet
                 if i == next_rec or i == n_total:
                     record(model, t0 + i * dt, q, qd, p, n_rec, out, ws.box)
                     n_rec += 1
@@ -363,24 +372,7 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
                         next_rec += record_every
                 if i == i_end:
                     break
-            if not held_trial:    # stopped only to record: hold on
-                continue
-        elif m == 0 and rest[C + MODE_AT] == 0:
-            # Free flight far from every wall: the lean loop, on floats only.
-            i_stop = min(i_end, next_rec)
-            i_fly, clear = model.fly(t0, dt, i, i_stop, q, qd, p, tol, clear, qb, qdb)
-            have_trial = True        # fly() stops before a step that needs care, its trial in qb, qdb
-            if i_fly > i:
-                ga_ok = False
-                i = i_fly
-                if i == next_rec or i == n_total:
-                    record(model, t0 + i * dt, q, qd, p, n_rec, out, ws.box)
-                    n_rec += 1
-                    if i == next_rec:
-                        next_rec += record_every
-                if i == i_end:
-                    break
-            if i_fly == i_stop:    # stopped only to record: fly on
+            if i_quiet == i_stop:    # stopped only to record: go on
                 continue
         if rest[C + MODE_AT] > 0 and stages.missing & NEED_FALLBACK:
             return i, n_rec, n_ev, MISSING
