@@ -156,3 +156,50 @@ def test_renamed_copy_of_a_scene_compiles_nothing(fresh_cache, tmp_path):
     np.testing.assert_array_equal(a.q, b.q)
     copy = jackbox.load_scene(write_scene(tmp_path, jackbox.builtin_scenes()["drop"].read_text(), "copy.toml"))
     assert loader.model_path(copy) == loader.GENERATED_DIR / "drop.py"
+
+
+
+#: compiles the ensembles' prange loop alone, into the cache (as another process that got there first would)
+PRANGE_LOOP = """
+from jackbox import engine
+from jackbox.engine import members
+from jackbox.engine.records import F8, I1, I8, V2, ExactType, ModelType, StagesType
+V3 = engine.V3
+members.all_members.compile((ModelType, ExactType, StagesType, V2, V2, V2, V2, F8, I8, I1, V3, V3, V2, V2, V2))
+"""
+ENSEMBLE = ("from jackbox.ensemble import ensemble; e = ensemble('shaken', 4, perturb={'theta_jack': 1e-6}, t_end=0.01, seed=0); "
+            "print(int(e.completed.sum()))")
+
+
+def test_an_entry_compiled_over_a_cached_prange_loop_loads_in_a_new_process(tmp_path):
+    """A cached function that calls a prange loop is saved with a hook that starts Numba's
+    threads when it is loaded, except when the loop itself came from the cache as it was
+    compiled (two processes compiling the engine at once, as the test suite's workers do).
+    Running it in a later process then ended that process with "LLVM ERROR: Symbol not
+    found: allocate_sched" (seen in the suite: the benchmark smoke test's ensemble). The
+    engine starts the threads before it loads an entry point that runs one.
+
+    The engine's other machine code comes from this session's cache (copied), so only the
+    members' functions are compiled here, in the order that leaves the hook out.
+    """
+    cache = tmp_path / "cache"
+    ours = engine.cache.engine_cache_path()
+    shutil.copytree(ours, cache / "engine" / ours.name, ignore=shutil.ignore_patterns("members.*"))
+    for folder in ("kernels", "models"):
+        if (ours.parent.parent / folder).is_dir():
+            shutil.copytree(ours.parent.parent / folder, cache / folder)
+    env = os.environ | {"JACKBOX_CACHE_DIR": str(cache)}
+    env.pop("NUMBA_DISABLE_JIT", None)
+
+    def run(code):
+        return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
+
+    assert run(PRANGE_LOOP).returncode == 0
+    first = run(ENSEMBLE)               # compiles run_members over the cached loop
+    assert first.returncode == 0, first.stderr
+    (saved,) = (cache / "engine").glob("*/members.run_members-*.nbc")
+    if b"_reload_parfors" in saved.read_bytes():
+        pytest.skip("this Numba saves the threads' hook with the caller too: nothing left to check")
+    again = run(ENSEMBLE)               # loads it
+    assert again.returncode == 0, again.stderr
+    assert again.stdout.split() == first.stdout.split() == ["4"]

@@ -38,6 +38,7 @@ import numba
 import numpy as np
 from numba.core import types
 from numba.core.errors import NumbaExperimentalFeatureWarning
+from numba.np.ufunc.parallel import _launch_threads
 
 from . import cache
 
@@ -59,6 +60,8 @@ ENTRIES = {
     "set_up_members": ("members", (I2, SetupType, V2, V2, V2, V2, V2, V1)),
     "fill_tolerances": ("tolerances", (I2, V1, F8, I8, I8, F8, V1)),
 }
+#: the entry points that run a prange loop (Numba's threads must be started before one is loaded)
+PARALLEL = ("run_members", "run_twin_members", "set_up_members")
 #: the engine's function values: name -> (module, function, signature, what it needs compiled first)
 LOOPS = {
     "step": ("integrator", "rk4", STEP, ()),
@@ -392,6 +395,13 @@ def compile_part(name: str) -> bool:
             _loops[name] = compiled
             return not compiled.cache_hits
         fn = _dispatcher(name)
+        if name in PARALLEL:
+            # A cached function that calls a prange loop is saved with the hook that starts
+            # Numba's threads on loading, unless that loop was itself loaded from the cache when
+            # the caller was compiled (another process compiled it first): its library then
+            # carries no hook, and loading the caller later fails with "LLVM ERROR: Symbol not
+            # found: allocate_sched". Starting the threads first makes either load.
+            _launch_threads()
         before = sum(fn.stats.cache_misses.values())
         fn.compile(ENTRIES[name][1])
         fn.disable_compile()
