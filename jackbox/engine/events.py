@@ -15,7 +15,7 @@ The re-steps go through ``step``, the integrator's compiled function value
 import numpy as np
 from numba import njit
 
-from .gaps import hermite, hermite_extrema, step_reach
+from .gaps import cubic_error, hermite, hermite_extrema, step_reach
 from .modes import accel, contact_accel
 from .records import (AF, FLAGS, GA, GB, GS, LAM, LAMA, LAMB, LEV, LR, LS, QB, QDB, QDS, QS, RIDX, T_AREST, T_EVENT, T_VREST, VA,
                       VB, WARN_LOCATE)
@@ -177,6 +177,9 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
     for k in range(C):
         lev[k] = deep if ga[k] + half < 0.0 and va[k] >= -tiny else half
     ext = ws.ext
+    # a dip whose cubic stays above zero by less than the cubic's own error is looked at (one
+    # re-step to its bottom): a corner turning fast can dip below zero where its cubic does not
+    dip = cubic_error(qd, ws.n[QDB], h, tol)
     best_l = -1.0
     best_k = -1
     t_hi = tb
@@ -187,14 +190,17 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
         if min(fa, fb) >= band:
             continue
         da, db = h * va[k], h * vb[k]
-        # right end of the bracket: the step's end, or the cubic's negative dip
+        # right end of the bracket: the step's end, or a dip of the cubic below its error
         nx = hermite_extrema(fa, fb, da, db, ext)
         sr = -1.0
         fr = 0.0
         if fb < 0.0:
             sr, fr = 1.0, fb
         for j in range(nx):
-            if hermite(fa, fb, da, db, ext[j]) < 0.0 and (sr < 0.0 or ext[j] < sr):
+            hv = hermite(fa, fb, da, db, ext[j])
+            # (a dip: the cubic falls below both ends by more than its error; a contact sitting
+            # at its level, its cubic flat within round-off, is not looked at every step)
+            if (hv < 0.0 or hv < dip < min(fa, fb) - hv) and (sr < 0.0 or ext[j] < sr):
                 sr = ext[j]
                 fr = event_value(model, step, gap_kind, k, ta, q, qd, ta + sr * h, p, tol, m, ws)
                 if fr >= 0.0:
