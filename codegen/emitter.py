@@ -35,7 +35,7 @@ from .printer import KernelPrinter
 from .version import GENERATOR, model_hash, seal
 
 #: Inputs a function can take, in signature order.
-_ARG_ORDER = ("t", "q", "qd", "p")
+_ARG_ORDER = ("t", "q", "qd", "p", "sc")
 
 
 @dataclass
@@ -92,7 +92,44 @@ def functions(model: Model) -> list[Function]:
     fs += [Function(f"{fn.name}_s", fn.args, fn.outputs, (len(fn.outputs),),
                     f"{fn.name}() for the free-flight loop: q, qd tuples in, a tuple out.", tuple_io=True)
            for fn in fs if fn.name in TUPLE_TWINS]
+    lane = _lane_gaps(model)
+    if lane is not None:
+        fs.append(Function("clearance_v", ("t", "q", "p", "sc"), [lane], None,
+                           "The smallest gap, for the lanes of an ensemble block: q a tuple, and sc the "
+                           "sines and cosines of the box's and the jack's angles (the engine's own, "
+                           "vectorisable), so that the body has no call.", tuple_io=True))
     return fs
+
+
+#: the lane functions' angles: their sines and cosines come in as the tuple ``sc``
+LANE_ANGLES = ("theta_box", "theta_jack")
+
+
+def lane_symbols() -> tuple[sp.Symbol, ...]:
+    """(sin, cos) of each of LANE_ANGLES, the symbols ``sc`` stands for."""
+    return tuple(sp.Symbol(f"{f}_{a}", real=True) for a in LANE_ANGLES for f in ("sin", "cos"))
+
+
+def _lane_gaps(model: Model) -> sp.Expr | None:
+    """The smallest gap with the angles' sines and cosines as symbols, or None where that leaves a call.
+
+    A prescribed box turns by a function of time: its lanes would need that
+    function's sine, so it has none (its members step one at a time).
+    """
+    if model.box_motion is not None:
+        return None
+    angles = {s.name: s for s in model.q}
+    if not all(a in angles for a in LANE_ANGLES):
+        return None
+    sc = iter(lane_symbols())
+    trig = {}
+    for a in LANE_ANGLES:
+        trig[sp.sin(angles[a])] = next(sc)
+        trig[sp.cos(angles[a])] = next(sc)
+    gaps = [g.subs(trig) for g in model.phi]
+    if any(g.has(sp.sin, sp.cos, sp.tan, *(angles[a] for a in LANE_ANGLES)) for g in gaps):
+        return None
+    return sp.Min(*gaps, evaluate=False)
 
 
 def _inputs(model: Model) -> dict[str, dict[sp.Symbol, tuple[str, str]]]:
@@ -102,6 +139,7 @@ def _inputs(model: Model) -> dict[str, dict[sp.Symbol, tuple[str, str]]]:
         "q": {s: (s.name, f"q[{i}]") for i, s in enumerate(model.q)},
         "qd": {s: (s.name, f"qd[{i}]") for i, s in enumerate(model.qd)},
         "p": {s: (f"p_{s.name}", f"p[{i}]") for i, s in enumerate(model.p)},
+        "sc": {s: (s.name, f"sc[{i}]") for i, s in enumerate(lane_symbols())},
     }
 
 
@@ -120,12 +158,13 @@ def emit_module(model: Model, command: str) -> str:
     # a tuple twin reuses its array function's terms
     names = {s: local for arg in inputs.values() for s, (local, _) in arg.items()}
     cses = {}
+    twins = {f"{name}_s": name for name in TUPLE_TWINS}
     for fn in fs:
-        if not fn.tuple_io:
+        if fn.name not in twins:
             cses[fn.name] = sp.cse(fn.outputs, symbols=sp.numbered_symbols("_x", real=True), order="canonical")
     bodies = []
     for fn in fs:
-        replacements, outs = cses[fn.name.removesuffix("_s") if fn.tuple_io else fn.name]
+        replacements, outs = cses[twins.get(fn.name, fn.name)]
         printer = KernelPrinter(names | {sym: sym.name for sym, _ in replacements})
         position = {sym: i for i, (sym, _) in enumerate(replacements)}
         if fn.name == "accel_s":
