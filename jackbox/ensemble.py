@@ -68,6 +68,7 @@ class EnsembleSpec:
     sample_steps: tuple[int, ...]
     renorm_steps: int = 0                           #: chaos study: steps between renormalisations
     d0: float = 0.0                                 #: chaos study: twin separation (scaled)
+    lanes: bool = True                              #: members that share their parameters in blocks of lanes
 
     @property
     def t_end(self) -> float:
@@ -146,7 +147,7 @@ def run_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray
     samp_q, samp_qd = np.full((m, S, 6), np.nan), np.full((m, S, 6), np.nan)
     fin_q, fin_qd, fin = np.zeros((m, 6)), np.zeros((m, 6)), np.zeros((m, 7))
     kernel.run_members(rows["q0"], rows["qd0"], rows["params"], rows["tol"], spec.dt, spec.n_steps,
-                       np.asarray(spec.sample_steps, np.int64), samp_q, samp_qd, fin_q, fin_qd, fin)
+                       np.asarray(spec.sample_steps, np.int64), samp_q, samp_qd, fin_q, fin_qd, fin, lanes=spec.lanes)
     # a member that stopped early has no final state: NaN, not its last sample
     # (the step it reached is kept in `steps`)
     lost = fin[:, 3] != K.DONE
@@ -319,7 +320,7 @@ class ChaosStudy:
 def ensemble(scene, n: int, perturb=None, params=None, t_end=None, dt=None, seed: int = 0, *,
              sweep=None, grid: bool = False, samples=None, chunk: int | None = None, threads: int | None = None,
              scheduler: str | None = None, dask_local: int | None = None, progress: bool = False,
-             log=None) -> Ensemble:
+             log=None, lanes: bool = True) -> Ensemble:
     """Run n members of a scene in parallel; see the module docstring for how they differ.
 
     samples: times (s) at which to keep every member's state (rounded to whole steps).
@@ -329,8 +330,13 @@ def ensemble(scene, n: int, perturb=None, params=None, t_end=None, dt=None, seed
     ``"tcp://host:port"`` of a running Dask scheduler; dask_local: start a
     Dask LocalCluster with that many worker processes instead. Results are
     the same bit for bit whichever way the members are split.
+    lanes: members that share their parameters (no sweep) are stepped in
+    blocks of ``engine.LANES``, together in vector instructions while they fly
+    free (:mod:`jackbox.engine.lanes`): the same numbers, faster; False steps
+    each alone.
     """
-    spec = plan(scene, n, perturb, params, sweep, t_end, dt, seed, grid, samples)
+    spec = dataclasses.replace(plan(scene, n, perturb, params, sweep, t_end, dt, seed, grid, samples),
+                               lanes=bool(lanes))
     # what the study will hold once every member is back: states, samples, starts, params
     S, dof = len(spec.sample_steps), len(spec.scene.dof_names)
     per_member = 8 * (12 * S + 12 + 5 + 2 * dof + len(spec.scene.param_names))

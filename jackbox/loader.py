@@ -50,11 +50,17 @@ from codegen import generate, is_sealed, model_hash
 
 from . import engine
 from .engine.flight import INLINED
+from .engine.lanes import INLINED as LANES_INLINED
 from .errors import CacheWarning
 from .fileio import write_atomic
 from .scene import Scene
 
 FLIGHT_SOURCE = Path(__file__).with_name("engine") / "flight.py"
+LANES_SOURCE = Path(__file__).with_name("engine") / "lanes.py"
+#: the lanes of a model that has none compiled (yet): every lane "not quiet", so a block would step
+#: each member alone through the exact loop (a kernel binds the real ones before a study uses them)
+LANES_STUB = ("def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):\n"
+              "    for l in range(quiet.shape[0]):\n        quiet[l] = 0\n    return i\n")
 GENERATED_DIR = Path(__file__).resolve().parent.parent / "generated"
 #: functions a model may lack; the kernel only calls them when the model has them
 OPTIONAL = {
@@ -175,7 +181,7 @@ def intact(path: Path) -> bool:
     return _intact[stamp]
 
 
-def binding_parts(model_text: str, flight_text: str | None = None) -> dict[str, str]:
+def binding_parts(model_text: str, flight_text: str | None = None, lanes: bool = False) -> dict[str, str]:
     """The text of each *binding part*: one small module per function the engine calls.
 
     A part holds one function of :data:`jackbox.engine.SIGNATURES` (or the
@@ -189,15 +195,26 @@ def binding_parts(model_text: str, flight_text: str | None = None) -> dict[str, 
     not the gaps), and a part two models share is compiled once. A part that reaches the
     engine's code (the hot path's imports) names the engine's digest, so an
     edit of the engine is never served stale machine code.
+
+    lanes: the ``lanes`` part is an ensemble block's (:mod:`jackbox.engine.lanes`),
+    for a model that has lanes (``clearance_v``: a free box); else it is
+    :data:`LANES_STUB`, the same for every model, so a model compiles its
+    lanes only when a study first needs them.
     """
     flight_text = FLIGHT_SOURCE.read_text() if flight_text is None else flight_text
-    return dict(_binding_parts(model_text, flight_text, engine.cache.DIGEST))
+    lanes_text = LANES_SOURCE.read_text() if lanes and has_lanes(model_text) else LANES_STUB
+    return dict(_binding_parts(model_text, flight_text, lanes_text, engine.cache.DIGEST))
+
+
+def has_lanes(model_text: str) -> bool:
+    """Whether a generated model has the functions an ensemble block's lanes need."""
+    return "clearance_v" in _functions_of(model_text)
 
 
 @functools.lru_cache(maxsize=16)
-def _binding_parts(model_text: str, flight_text: str, digest: str) -> dict[str, str]:
+def _binding_parts(model_text: str, flight_text: str, lanes_text: str, digest: str) -> dict[str, str]:
     """(binding_parts, kept for the texts a process sees again)"""
-    model_blocks, flight_blocks = _blocks(_with_stubs(model_text)), _blocks(flight_text)
+    model_blocks, flight_blocks = _blocks(_with_stubs(model_text)), _blocks(flight_text) + _blocks(lanes_text)
     defined = {name: i for i, (names, _, _) in enumerate(model_blocks + flight_blocks) for name in names}
     blocks = model_blocks + flight_blocks
     parts = {}
@@ -247,8 +264,8 @@ def part_entries() -> dict[str, tuple[str, ...]]:
 #: the helpers of the hot path a part compiles as njit functions (callees inlined by LLVM, or
 #: by Numba where marked), with their options
 _JITTED = {**{name: "" for name in ("tuple_of", "accel_s", "accel_time_s", "phi_s", "box_motion_s", "axpy_s",
-                                     "wsum_s")},
-           **{name: ', inline="always"' for name in INLINED}}
+                                     "wsum_s", "lane_bound")},
+           **{name: ', inline="always"' for name in INLINED + LANES_INLINED}}
 
 
 def _blocks(text: str) -> list[tuple[set, str, set]]:
@@ -297,7 +314,7 @@ def part_path(name: str, text: str) -> Path:
     return cache_dir() / "kernels" / f"{name}_{key}.py"
 
 
-def load_binding(model_file: Path, flight_text: str | None = None) -> ModuleType:
+def load_binding(model_file: Path, flight_text: str | None = None, lanes: bool = False) -> ModuleType:
     """The model as a module, with its functions bound to the engine in ``COMPILED`` (compiled or loaded).
 
     Writes the binding parts (:func:`binding_parts`) that are not in the cache
@@ -306,7 +323,7 @@ def load_binding(model_file: Path, flight_text: str | None = None) -> ModuleType
     cores. ``CACHE`` says whether any was compiled now ("miss").
     """
     model_text = model_file.read_text()
-    texts = binding_parts(model_text, flight_text)
+    texts = binding_parts(model_text, flight_text, lanes)
     paths = {name: part_path(name, text) for name, text in texts.items()}
     key = hashlib.sha256("\0".join([model_text, *map(str, paths.values())]).encode()).hexdigest()[:16]
     if key in _loaded:
@@ -324,6 +341,7 @@ def load_binding(model_file: Path, flight_text: str | None = None) -> ModuleType
     compiled = {entry: fn for part in parts.values() for entry, fn in part.COMPILED.items()}
     module.COMPILED = {name: compiled[name] for name in engine.SIGNATURES}
     module.PARTS = paths
+    module.LANES = lanes and has_lanes(model_text)
     module.PART_CACHE = {name: part.CACHE for name, part in parts.items()}
     module.CACHE = ("disabled" if numba.config.DISABLE_JIT else
                     "miss" if any(part.CACHE == "miss" for part in parts.values()) else "hit")
@@ -462,7 +480,8 @@ class Kernel:
             self.table(("naive",)), q, qd, p, float(t0), float(dt), i_begin, i_end, n_total, record_every,
             rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, kind, n_imp)
 
-    def run_members(self, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
+    def run_members(self, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin,
+                    lanes: bool = False):
         """Every member, in parallel (see :func:`jackbox.engine.members.run_members`); rows of the outputs filled.
 
         The stages compiled on first need (engine.LAZY) are left out while
@@ -470,18 +489,26 @@ class Kernel:
         MISSING); the stage is then compiled and those members run again
         from their start, which gives the numbers a run with every stage gives
         (a member's result depends on its inputs only).
-        """
-        def run(table, rows, *outputs):
-            engine.entry("run_members")(table, *(a[rows] for a in (Q0, QD0, P, TOL)), dt, n_steps, sample_steps,
-                                        *outputs)
 
-        engine.entry("run_members")(self.table(), Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd,
-                                    fin_q, fin_qd, fin)
+        lanes: in blocks of ``engine.LANES`` members stepped together
+        (:func:`jackbox.engine.members.run_member_blocks`; the same numbers),
+        where the model has lanes and every member has the parameters and
+        tolerances of the first.
+        """
+        entry, kernel = "run_members", self
+        if lanes and self.lanes_apply(P, TOL):
+            entry, kernel = "run_member_blocks", self.with_lanes()
+
+        def run(table, rows, *outputs):
+            engine.entry(entry)(table, *(a[rows] for a in (Q0, QD0, P, TOL)), dt, n_steps, sample_steps, *outputs)
+
+        engine.entry(entry)(kernel.table(), Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd,
+                            fin_q, fin_qd, fin)
         again = np.flatnonzero(fin[:, 3] == engine.MISSING)
         if again.size:
             outputs = (np.full_like(samp_q[again], np.nan), np.full_like(samp_qd[again], np.nan),
                        np.zeros_like(fin_q[again]), np.zeros_like(fin_qd[again]), np.zeros_like(fin[again]))
-            run(self._all_stages(), again, *outputs)
+            run(kernel._all_stages(), again, *outputs)
             for whole, part in zip((samp_q, samp_qd, fin_q, fin_qd, fin), outputs):
                 whole[again] = part
 
@@ -495,6 +522,15 @@ class Kernel:
             engine.entry("run_twin_members")(self._all_stages(), *(a[again] for a in (Q0, QD0, DQ, DQD, P, TOL)),
                                              dt, n_steps, renorm_steps, scale, *outputs)
             stretch[again], fin[again] = outputs
+
+    def lanes_apply(self, P, TOL) -> bool:
+        """Whether members with these parameter and tolerance rows can go through lanes (see run_members)."""
+        return (has_lanes(Path(self.__file__).read_text()) and P.shape[0] > 0
+                and bool((P == P[0]).all()) and bool((TOL == TOL[0]).all()))
+
+    def with_lanes(self) -> "Kernel":
+        """This model with its own lanes bound (compiled on first use), for ensemble blocks."""
+        return self if self.module.LANES else load_kernel(Path(self.__file__), lanes=True)
 
     def _all_stages(self):
         """The table of the exact loop with every stage, compiling the ones compiled on first need now."""
@@ -513,15 +549,19 @@ class Kernel:
         return out
 
 
-def load_kernel(model_file: Path, flight_text: str | None = None) -> Kernel:
-    """The :class:`Kernel` of a generated model (its binding imported, compiling on first use)."""
+def load_kernel(model_file: Path, flight_text: str | None = None, lanes: bool = False) -> Kernel:
+    """The :class:`Kernel` of a generated model (its binding imported, compiling on first use).
+
+    lanes: with the model's own lanes for ensemble blocks (see :func:`binding_parts`).
+    """
     stamp = None
     if flight_text is None:
         # a second call with unchanged files costs two stat()s, not reading and hashing them
-        stamp = (str(cache_dir()), str(model_file), *_stat(model_file), *_stat(FLIGHT_SOURCE))
+        stamp = (str(cache_dir()), str(model_file), *_stat(model_file), *_stat(FLIGHT_SOURCE), lanes,
+                 *(_stat(LANES_SOURCE) if lanes else ()))
         if stamp in _stamped:
             return _stamped[stamp]
-    module = load_binding(model_file, flight_text)
+    module = load_binding(model_file, flight_text, lanes)
     kernel = module.__dict__.get("KERNEL")
     if kernel is None:
         kernel = module.KERNEL = Kernel(module)
@@ -575,7 +615,7 @@ def _cached(part: str, path: Path) -> bool:
 
 #: the engine's entry points each method needs (the first is the one to look for in the cache)
 ENTRY = {"exact": ("run_exact", "fill_tolerances"), "naive": ("run_naive",),
-         "ensemble": ("run_members", "set_up_members", "fill_tolerances"),
+         "ensemble": ("run_members", "set_up_members", "fill_tolerances", "run_member_blocks"),
          "chaos": ("run_twin_members", "set_up_members", "fill_tolerances")}
 #: the loop each method runs (compiled once as a function value)
 LOOP = {"exact": "exact", "naive": "naive", "ensemble": "exact", "chaos": "exact"}

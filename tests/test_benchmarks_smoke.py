@@ -71,6 +71,10 @@ def test_throughput_quick_mode(tmp_path):
         for threads in ("1", "2"):
             assert _positive(ens["threads"][threads]["member_steps_per_second"]), threads
         assert _positive(ens["efficiency"]) and ens["same_results"] is True
+        assert [st["scene"] for st in ens["studies"]] == ["shaken", "drop"]
+        for st in ens["studies"]:     # in lanes and alone: the same members, bit for bit
+            assert st["same_results"] is True and all(
+                _positive(st["rows"][way][t]["member_steps_per_second"]) for way in ("lanes", "alone") for t in "12")
     else:
         assert ens["reason"]
     md = (tmp_path / "throughput.md").read_text()

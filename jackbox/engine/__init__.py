@@ -44,7 +44,7 @@ from . import cache
 
 cache.install()          # before any engine module is imported: each fixes its cache folder when decorated
 
-from .records import (TABLE, CROSSING, EXACT, FALLBACK_STEP, HOLD, NAIVE, RELEASE_AT, STEP, UPDATE, DONE,  # noqa: E402
+from .records import (TABLE, CROSSING, EXACT, FALLBACK_STEP, HOLD, NAIVE, RELEASE_AT, STEP, UPDATE, DONE, LANES,  # noqa: E402
                       FALLBACK, IMPACT_LOG_FULL, MISSING, NEED_FALLBACK, NEED_HOLD, NEED_RELEASE, IMPULSE, MAX_EVENTS,
                       MODE_SLOTS, NONFINITE, RELEASE, REST, STALLED, T_AREST, T_BOXV, T_EVENT,
                       T_GAP, T_RBOX, T_RJACK, T_SPEED, T_VREST, T_WALL, WARN_LCP, WARN_LOCATE, WARNING, Events, F8, I1,
@@ -56,12 +56,15 @@ ENTRIES = {
     "run_exact": ("loop", (I2, V1, V1, I1, V1, V1, F8, F8, I8, I8, I8, I8, V1, V2, V2, V1, I8, V1, I1, I1, I8)),
     "run_naive": ("loop", (I2, V1, V1, V1, F8, F8, I8, I8, I8, I8, V1, V2, V2, V1, I8, V1, I1, I1, I8)),
     "run_members": ("members", (I2, V2, V2, V2, V2, F8, I8, I1, V3, V3, V2, V2, V2)),
+    "run_member_blocks": ("members", (I2, V2, V2, V2, V2, F8, I8, I1, V3, V3, V2, V2, V2)),
     "run_twin_members": ("members", (I2, V2, V2, V2, V2, V2, V2, F8, I8, I8, V1, V2, V2)),
     "set_up_members": ("members", (I2, SetupType, V2, V2, V2, V2, V2, V1)),
     "fill_tolerances": ("tolerances", (I2, V1, F8, I8, I8, F8, V1)),
 }
+#: the model functions compiled with LLVM's SLP vectoriser (see bind_part)
+VECTORISED = ("lanes",)
 #: the entry points that run a prange loop (Numba's threads must be started before one is loaded)
-PARALLEL = ("run_members", "run_twin_members", "set_up_members")
+PARALLEL = ("run_members", "run_member_blocks", "run_twin_members", "set_up_members")
 #: the engine's function values: name -> (module, function, signature, what it needs compiled first)
 LOOPS = {
     "step": ("integrator", "rk4", STEP, ()),
@@ -87,7 +90,7 @@ _helpers: dict = {}
 
 __all__ = ["DONE", "IMPACT_LOG_FULL", "MISSING", "NONFINITE", "STALLED", "IMPULSE", "REST", "RELEASE", "FALLBACK", "WARNING",
            "WARN_LCP", "WARN_LOCATE", "MAX_EVENTS", "MODE_SLOTS", "T_GAP", "T_EVENT", "T_VREST", "T_AREST", "T_BOXV", "T_WALL", "T_RJACK", "T_RBOX", "T_SPEED",
-           "Model", "Samples", "Events", "Setup", "SIGNATURES", "SIZES", "ENTRIES", "LOOPS", "LAZY", "entry", "compiled_loop", "prepare", "start", "start_binding", "wait_binding", "bind_part",
+           "Model", "Samples", "Events", "Setup", "LANES", "SIGNATURES", "SIZES", "ENTRIES", "LOOPS", "LAZY", "entry", "compiled_loop", "prepare", "start", "start_binding", "wait_binding", "bind_part",
            "binding_name", "table"]
 
 
@@ -223,7 +226,8 @@ def start(names, loops=(), lazy: bool = False, busy: float = 0.0) -> list[str]:
 #: seconds each model function takes to compile alone, as its own binding part (2 cores; measured by
 #: benchmarks/compile_parts.py --scene drop, after Numba's first compile): only to share them out
 PART_COST = {"inverse_mass": 0.1, "accel": 0.05, "phi": 0.2, "phi_q": 0.6, "phi_t": 0.03, "gap_rate": 0.3,
-             "gap_bias": 0.45, "energy": 0.1, "box_motion": 0.03, "clearance": 0.25, "flight": 1.4}
+             "gap_bias": 0.45, "energy": 0.1, "box_motion": 0.03, "clearance": 0.25, "flight": 1.4,
+             "lanes": 0.05}
 #: what Numba's first compile in a process costs beyond the function itself (see warm_binder)
 FIRST_COMPILE = 0.6
 #: a binding part's file -> the helper process compiling it (see start_binding)
@@ -238,9 +242,17 @@ def bind_part(name: str, fn):
     """
     if numba.config.DISABLE_JIT:
         return fn
+    slp = numba.config.SLP_VECTORIZE
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
-        return numba.cfunc(SIGNATURES[name], cache=True)(fn)
+        try:
+            # The loops over a block's lanes have a fixed trip count of LANES: LLVM unrolls them
+            # whole, and only its SLP vectoriser (off in Numba by default) then packs the lanes
+            # into vector instructions. It changes no rounding (no fast-math).
+            numba.config.SLP_VECTORIZE = slp or name in VECTORISED
+            return numba.cfunc(SIGNATURES[name], cache=True)(fn)
+        finally:
+            numba.config.SLP_VECTORIZE = slp
 
 
 def binding_name(path) -> str:

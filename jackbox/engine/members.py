@@ -1,4 +1,6 @@
-"""Members: many runs of one model at once, one per ``prange`` iteration (ensembles and twins).
+"""Members: many runs of one model at once, one per ``prange`` iteration (ensembles and twins),
+or, for ensembles whose members share their parameters, one block of LANES members per
+iteration, flying together in SIMD lanes (:func:`run_block`, :mod:`jackbox.engine.lanes`).
 
 A member's setup is its own work too, in a parallel loop before the runs
 (:func:`set_up_members`): its start, parameters, tolerance row and twin
@@ -19,8 +21,9 @@ import numpy as np
 from numba import njit, prange
 
 from .draws import START, TWIN, draw_normal, draw_uniform
-from .records import (DONE, EXACT_AT, FALLBACK, IMPACT_LOG_FULL, IMPULSE, MODE_AT, MODE_SLOTS, MODEL_AT, STAGES_AT,
-                      T_BOXV, WARNING, Events, ExactType, ModelType, Samples, StagesType, from_table)
+from .records import (DONE, EXACT_AT, FALLBACK, IMPACT_LOG_FULL, IMPULSE, LANES, MODE_AT, MODE_SLOTS, MODEL_AT,
+                      STAGES_AT, T_BOXV, WARNING, BLOCK_ROWS, Events, ExactType, ModelType, Samples, StagesType,
+                      from_table)
 from .tolerances import set_tolerances
 
 #: tally slots of one member: impulses so far, time of the first one (NaN if none), when the
@@ -248,6 +251,208 @@ def all_twins(model, exact, stages, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renor
     for j in prange(Q0.shape[0]):
         run_twins(model, exact, stages, Q0[j], QD0[j], DQ[j], DQD[j], P[j], TOL[j], dt, n_steps, renorm_steps, scale,
                   stretch[j], fin[j])
+
+
+# ---------------------------------------------------------------------------
+# blocks: LANES members that share their parameters, stepped together in free flight
+
+#: steps of a block between looks at which of its members are free (a member with a held contact or
+#: in the fallback steps alone, through the exact loop, to the end of such a stretch)
+CHUNK = 64
+#: steps a member near contact takes alone through the exact loop before it rejoins its block's lanes
+#: (an approach, its impacts and the departure take a few steps: one call for them, not one each)
+ALONE = 16
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def is_free(rest, C):
+    """Whether a member's modes leave it in free flight: no contact held, the exact method on."""
+    for k in range(C + MODE_AT + 1):
+        if rest[k] != 0:
+            return False
+    return True
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def take_lane(S, lane, q, qd):
+    """Lane lane's q and qd (rows 0 .. 11 of a block's state) into q, qd."""
+    W = LANES
+    for d in range(6):
+        q[d] = S[d * W + lane]
+        qd[d] = S[(6 + d) * W + lane]
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def put_lane(S, lane, q, qd):
+    """q, qd into lane lane of a block's state; its bound on the gaps to be computed again."""
+    W = LANES
+    for d in range(6):
+        S[d * W + lane] = q[d]
+        S[(6 + d) * W + lane] = qd[d]
+    S[24 * W + lane] = np.nan
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def run_block(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin,
+              first, count):
+    """Members first .. first + count - 1 (count <= LANES) as one block; outputs as :func:`run_member`'s.
+
+    The members share p and tol. Free members go through the model's lanes
+    together (``model.lanes``): each step that is quiet for all of them is one
+    vector step of the block. A member whose step is not quiet goes alone
+    through the exact loop (``exact``) for ALONE steps and rejoins; one that
+    holds a contact or is in the fallback goes alone to the end of the CHUNK.
+    A member's numbers are those :func:`run_member` gives it, bit for bit: the
+    lanes take only steps the exact loop would take as a plain RK4 step, with
+    the same operations, and a call of the exact loop from any step goes on as
+    one that got there itself. Lanes past count repeat the last member (not
+    written).
+    """
+    W, n, C = LANES, 6, model.n_contact
+    S = np.zeros(BLOCK_ROWS * W)
+    live = np.zeros(W, np.int64)
+    back = np.zeros(W, np.int64)
+    quiet = np.zeros(W, np.int64)
+    alive = np.zeros(W, np.int64)
+    status = np.zeros(W, np.int64)
+    reached = np.zeros(W, np.int64)
+    rests = np.zeros((W, C + MODE_SLOTS), np.int64)
+    tallies = np.empty((W, TALLY))
+    held_q, held_qd = np.empty((W, n)), np.empty((W, n))
+    q, qd = np.empty(n), np.empty(n)
+    out = new_samples(2)
+    log = new_log(LOG_SIZE)
+    n_samples = sample_steps.shape[0]
+    at_zero = n_samples > 0 and sample_steps[0] == 0
+    for lane in range(W):
+        j = first + min(lane, count - 1)
+        copy_to(q, Q0[j])
+        copy_to(qd, QD0[j])
+        copy_to(tallies[lane], new_tally())
+        i, _, st, log = run_segment(model, exact, stages, q, qd, rests[lane], p, tol, dt, 0, 0, out, 0, log, tallies[lane])
+        status[lane] = st
+        reached[lane] = i
+        alive[lane] = 1 if st == DONE else 0
+        put_lane(S, lane, q, qd)
+        if lane < count:
+            if at_zero:
+                copy_to(samp_q[j, 0], out.q[0])
+                copy_to(samp_qd[j, 0], out.qd[0])
+            copy_to(fin_q[j], out.q[0])
+            copy_to(fin_qd[j], out.qd[0])
+            fin[j, 0] = out.energy[0]
+    s = 1 if at_zero else 0
+    i = 0
+    while i < n_steps:
+        stop = sample_steps[s] if s < n_samples else n_steps
+        while i < stop:
+            end = min(stop, i + CHUNK)
+            for lane in range(W):
+                live[lane] = 1 if alive[lane] == 1 and is_free(rests[lane], C) else 0
+                back[lane] = -1
+                if alive[lane] == 1 and live[lane] == 0:      # held, or in the fallback: alone to the end
+                    take_lane(S, lane, held_q[lane], held_qd[lane])
+                    log = alone_to(model, exact, stages, held_q[lane], held_qd[lane], rests[lane], p, tol, dt, i, end, out,
+                                   tallies[lane], alive, status, reached, lane, log)
+                    back[lane] = end
+            j = i
+            while j < end:
+                j_stop = end
+                for lane in range(W):
+                    if back[lane] == j:                    # back from a stretch alone
+                        put_lane(S, lane, held_q[lane], held_qd[lane])
+                        back[lane] = -1
+                        if alive[lane] == 1 and is_free(rests[lane], C):
+                            live[lane] = 1
+                        elif alive[lane] == 1:
+                            log = alone_to(model, exact, stages, held_q[lane], held_qd[lane], rests[lane], p, tol, dt, j, end,
+                                           out, tallies[lane], alive, status, reached, lane, log)
+                            back[lane] = end
+                    if back[lane] > j:
+                        j_stop = min(j_stop, back[lane])
+                n_live = 0
+                for lane in range(W):
+                    n_live += live[lane]
+                if n_live == 0:
+                    j = j_stop
+                    continue
+                j = model.lanes(0.0, dt, j, j_stop, S, p, tol, live, quiet)
+                if j == j_stop:
+                    continue
+                for lane in range(W):
+                    if not live[lane]:
+                        continue
+                    if quiet[lane]:            # the trial of step j is this lane's next state
+                        for d in range(2 * n):
+                            S[d * W + lane] = S[(2 * n + d) * W + lane]
+                        S[24 * W + lane] = S[25 * W + lane]
+                        continue
+                    # near contact: alone through the exact loop for a stretch, then back
+                    take_lane(S, lane, held_q[lane], held_qd[lane])
+                    live[lane] = 0
+                    back[lane] = min(j + ALONE, end)
+                    log = alone_to(model, exact, stages, held_q[lane], held_qd[lane], rests[lane], p, tol, dt, j, back[lane], out,
+                                   tallies[lane], alive, status, reached, lane, log)
+                j += 1
+            for lane in range(W):
+                if back[lane] >= 0:
+                    put_lane(S, lane, held_q[lane], held_qd[lane])
+            i = end
+        sampled = s < n_samples and stop == sample_steps[s]
+        for lane in range(count):
+            if not alive[lane]:
+                continue
+            j = first + lane
+            take_lane(S, lane, q, qd)
+            if sampled:
+                copy_to(samp_q[j, s], q)
+                copy_to(samp_qd[j, s], qd)
+            copy_to(fin_q[j], q)
+            copy_to(fin_qd[j], qd)
+            fin[j, 0] = model.energy(0.0 + stop * dt, q, qd, p)
+        if sampled:
+            s += 1
+        n_alive = 0
+        for lane in range(W):
+            n_alive += alive[lane]
+        if n_alive == 0:
+            break
+    for lane in range(count):
+        j = first + lane
+        tally = tallies[lane]
+        done = alive[lane] == 1
+        fin[j, 1] = tally[TALLY_IMPULSES]
+        fin[j, 2] = tally[TALLY_FIRST]
+        fin[j, 3] = DONE if done else status[lane]
+        fin[j, 4] = n_steps if done else reached[lane]
+        fin[j, 5] = fallback_time(tally, fin[j, 4] * dt)
+        fin[j, 6] = tally[TALLY_WARNINGS]
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def alone_to(model, exact, stages, q, qd, rest, p, tol, dt, i, end, out, tally, alive, status, reached, lane, log):
+    """Member lane of a block alone through the exact loop from step i to end (q, qd updated); returns the log."""
+    k, _, st, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, end, out, 1, log, tally)
+    if st != DONE:
+        alive[lane], status[lane], reached[lane] = 0, st, k
+    return log
+
+
+@njit(cache=True)
+def run_member_blocks(table, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
+    """:func:`run_members` in blocks of LANES members (:func:`run_block`), in parallel; the members share P[0], TOL[0]."""
+    model, exact, stages = parts(table)
+    all_blocks(model, exact, stages, Q0, QD0, P[0], TOL[0], dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd,
+               fin)
+
+
+@njit(cache=True, no_cpython_wrapper=True, parallel=True)
+def all_blocks(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
+    N = Q0.shape[0]
+    for b in prange((N + LANES - 1) // LANES):
+        first = b * LANES
+        run_block(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd,
+                  fin, first, min(LANES, N - first))
 
 
 # ---------------------------------------------------------------------------

@@ -98,7 +98,16 @@ SIGNATURES = {
     "clearance": F8(F8, V1, V1, V1),                          # (t, q, p, tol)
     "free_step": types.void(F8, V1, V1, F8, V1, V1, V1),      # (t, q, qd, dt, p, q_out, qd_out)
     "fly": types.Tuple((I8, F8))(F8, F8, I8, I8, V1, V1, V1, V1, F8, V1, V1),
+    # an ensemble block's lanes (jackbox/engine/lanes.py, compiled with the model when a study needs it)
+    "lanes": I8(F8, F8, I8, I8, V1, V1, V1, I1, I1),             # (t0, dt, i, i_stop, S, p, tol, live, quiet)
 }
+#: members of an ensemble block, stepped together in the lanes of one vector (jackbox.engine.lanes)
+LANES = 16
+#: rows of a block's state (each LANES floats, free boxes: six coordinates): q, qd, the trial q and qd
+#: of the step the lanes stopped before, then the bound on every gap at the start and at the trial's end
+#: and the trial step's band
+BLOCK_ROWS = 4 * 6 + 3
+
 #: integer fields of the model record, then its functions
 SIZES = ("n_dof", "n_contact", "n_wall", "e_slot", "e_ground_slot", "prescribed", "has_ground")
 Model = namedtuple("Model", SIZES + tuple(SIGNATURES))
