@@ -305,8 +305,8 @@ def run_block(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, 
     A member's numbers are those :func:`run_member` gives it, bit for bit: the
     lanes take only steps the exact loop would take as a plain RK4 step, with
     the same operations, and a call of the exact loop from any step goes on as
-    one that got there itself. Lanes past count repeat the last member (not
-    written).
+    one that got there itself. Lanes past count hold a copy of the last
+    member's start and are never stepped but in the vectors (not written).
     """
     W, n, C = LANES, 6, model.n_contact
     S = np.zeros(BLOCK_ROWS * W)
@@ -329,18 +329,20 @@ def run_block(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, 
         copy_to(q, Q0[j])
         copy_to(qd, QD0[j])
         copy_to(tallies[lane], new_tally())
+        if lane >= count:           # padding: flies along in the vectors, never stepped alone
+            put_lane(S, lane, q, qd)
+            continue
         i, _, st, log = run_segment(model, exact, stages, q, qd, rests[lane], p, tol, dt, 0, 0, out, 0, log, tallies[lane])
         status[lane] = st
         reached[lane] = i
         alive[lane] = 1 if st == DONE else 0
         put_lane(S, lane, q, qd)
-        if lane < count:
-            if at_zero:
-                copy_to(samp_q[j, 0], out.q[0])
-                copy_to(samp_qd[j, 0], out.qd[0])
-            copy_to(fin_q[j], out.q[0])
-            copy_to(fin_qd[j], out.qd[0])
-            fin[j, 0] = out.energy[0]
+        if at_zero:
+            copy_to(samp_q[j, 0], out.q[0])
+            copy_to(samp_qd[j, 0], out.qd[0])
+        copy_to(fin_q[j], out.q[0])
+        copy_to(fin_qd[j], out.qd[0])
+        fin[j, 0] = out.energy[0]
     s = 1 if at_zero else 0
     i = 0
     while i < n_steps:
