@@ -209,9 +209,10 @@ def _parser() -> argparse.ArgumentParser:
     ens.add_argument("--samples", type=float, nargs="+", metavar="T",
                      help="times (s) at which to keep every member's state (rounded to whole steps)")
     ens.add_argument("--out", type=Path, metavar="DIR", help="output folder (default: runs/<scene name>)")
-    ens.add_argument("--no-lanes", dest="lanes", action="store_false",
-                     help="step every member alone (default: members that share their parameters fly in blocks "
-                          "of SIMD lanes; the same numbers)")
+    ens.add_argument("--lanes", choices=("auto", "yes", "no"), default="auto",
+                     help="members that share their parameters fly in blocks of SIMD lanes (the same numbers, "
+                          "faster): yes, no, or auto (default): where that wins back its compile time (a big "
+                          "study) or it is compiled already")
     ens.set_defaults(func=cmd_ensemble)
 
     chaos = sub.add_parser(
@@ -362,7 +363,8 @@ def cmd_ensemble(args) -> int:
 
     scene = load_scene(args.scene, _overrides(args.overrides))
     out_dir = _out_dir(args, scene)
-    result = ensemble(scene, args.n, samples=args.samples, lanes=args.lanes, **_study_kwargs(args))
+    lanes = {"auto": None, "yes": True, "no": False}[args.lanes]
+    result = ensemble(scene, args.n, samples=args.samples, lanes=lanes, **_study_kwargs(args))
     path = result.save(out_dir / "ensemble.npz")
     if not args.quiet:
         print(result.summary())

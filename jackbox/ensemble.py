@@ -68,7 +68,8 @@ class EnsembleSpec:
     sample_steps: tuple[int, ...]
     renorm_steps: int = 0                           #: chaos study: steps between renormalisations
     d0: float = 0.0                                 #: chaos study: twin separation (scaled)
-    lanes: bool = True                              #: members that share their parameters in blocks of lanes
+    lanes: bool | None = None                       #: blocks of lanes for members that share their parameters
+                                                    #: (None: where it pays, see use_lanes)
 
     @property
     def t_end(self) -> float:
@@ -133,6 +134,25 @@ def member_inputs(spec: EnsembleSpec, start: int, stop: int) -> tuple[np.ndarray
     return rows["q0"], rows["qd0"], rows["params"]
 
 
+#: member-steps from which a study compiles its lanes when they are not compiled yet: they take a
+#: member-step about 20 ns less than a member alone (shaken, this 2-core machine), and compiling
+#: them costs about 14 s once (the block loop once per machine, the lanes once per model)
+LANES_WORTH = 1e9
+
+
+def use_lanes(spec: EnsembleSpec, kernel) -> bool:
+    """Whether a study's members that share their parameters go in blocks of lanes.
+
+    As asked (``spec.lanes`` True or False); else (None) where it pays: when
+    the lanes of the model and the block loop are compiled (or cached)
+    already, or the study is big enough (LANES_WORTH member-steps) to win back
+    their compile time. The numbers are the same either way.
+    """
+    if spec.lanes is not None:
+        return spec.lanes
+    return spec.n * spec.n_steps >= LANES_WORTH or kernel.lanes_ready()
+
+
 def run_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray]:
     """Run members start..stop-1; every array returned has stop - start rows.
 
@@ -147,7 +167,8 @@ def run_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray
     samp_q, samp_qd = np.full((m, S, 6), np.nan), np.full((m, S, 6), np.nan)
     fin_q, fin_qd, fin = np.zeros((m, 6)), np.zeros((m, 6)), np.zeros((m, 7))
     kernel.run_members(rows["q0"], rows["qd0"], rows["params"], rows["tol"], spec.dt, spec.n_steps,
-                       np.asarray(spec.sample_steps, np.int64), samp_q, samp_qd, fin_q, fin_qd, fin, lanes=spec.lanes)
+                       np.asarray(spec.sample_steps, np.int64), samp_q, samp_qd, fin_q, fin_qd, fin,
+                       lanes=use_lanes(spec, kernel))
     # a member that stopped early has no final state: NaN, not its last sample
     # (the step it reached is kept in `steps`)
     lost = fin[:, 3] != K.DONE
@@ -320,7 +341,7 @@ class ChaosStudy:
 def ensemble(scene, n: int, perturb=None, params=None, t_end=None, dt=None, seed: int = 0, *,
              sweep=None, grid: bool = False, samples=None, chunk: int | None = None, threads: int | None = None,
              scheduler: str | None = None, dask_local: int | None = None, progress: bool = False,
-             log=None, lanes: bool = True) -> Ensemble:
+             log=None, lanes: bool | None = None) -> Ensemble:
     """Run n members of a scene in parallel; see the module docstring for how they differ.
 
     samples: times (s) at which to keep every member's state (rounded to whole steps).
@@ -332,11 +353,12 @@ def ensemble(scene, n: int, perturb=None, params=None, t_end=None, dt=None, seed
     the same bit for bit whichever way the members are split.
     lanes: members that share their parameters (no sweep) are stepped in
     blocks of ``engine.LANES``, together in vector instructions while they fly
-    free (:mod:`jackbox.engine.lanes`): the same numbers, faster; False steps
-    each alone.
+    free (:mod:`jackbox.engine.lanes`): the same numbers, faster. None (the
+    default): where it pays (:func:`use_lanes`); True: always; False: each
+    member alone.
     """
     spec = dataclasses.replace(plan(scene, n, perturb, params, sweep, t_end, dt, seed, grid, samples),
-                               lanes=bool(lanes))
+                               lanes=None if lanes is None else bool(lanes))
     # what the study will hold once every member is back: states, samples, starts, params
     S, dof = len(spec.sample_steps), len(spec.scene.dof_names)
     per_member = 8 * (12 * S + 12 + 5 + 2 * dof + len(spec.scene.param_names))

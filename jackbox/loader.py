@@ -528,6 +528,15 @@ class Kernel:
         return (has_lanes(Path(self.__file__).read_text()) and P.shape[0] > 0
                 and bool((P == P[0]).all()) and bool((TOL == TOL[0]).all()))
 
+    def lanes_ready(self) -> bool:
+        """Whether this model's lanes and the engine's block loop are compiled or cached (nothing to compile)."""
+        if not has_lanes(Path(self.__file__).read_text()):
+            return False
+        text = binding_parts(Path(self.__file__).read_text(), lanes=True)["lanes"]
+        path = part_path("lanes", text)
+        return ((self.module.LANES or str(path) in _parts or _cached("lanes", path))
+                and (bool(engine._dispatcher("run_member_blocks").signatures) or engine.cached("run_member_blocks")))
+
     def with_lanes(self) -> "Kernel":
         """This model with its own lanes bound (compiled on first use), for ensemble blocks."""
         return self if self.module.LANES else load_kernel(Path(self.__file__), lanes=True)
@@ -615,7 +624,7 @@ def _cached(part: str, path: Path) -> bool:
 
 #: the engine's entry points each method needs (the first is the one to look for in the cache)
 ENTRY = {"exact": ("run_exact", "fill_tolerances"), "naive": ("run_naive",),
-         "ensemble": ("run_members", "set_up_members", "fill_tolerances", "run_member_blocks"),
+         "ensemble": ("run_members", "set_up_members", "fill_tolerances"),
          "chaos": ("run_twin_members", "set_up_members", "fill_tolerances")}
 #: the loop each method runs (compiled once as a function value)
 LOOP = {"exact": "exact", "naive": "naive", "ensemble": "exact", "chaos": "exact"}

@@ -10,6 +10,7 @@ resting contact (drop at e = 0.6 and 0), a spring and a member that turns non-fi
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -19,7 +20,7 @@ from numba import njit
 import jackbox
 from jackbox import engine, loader
 from jackbox.engine import LANES, NONFINITE
-from jackbox.ensemble import ensemble
+from jackbox.ensemble import LANES_WORTH, ensemble, plan, use_lanes
 
 from .conftest import PRESCRIBED, write_scene
 
@@ -132,3 +133,17 @@ def test_a_model_compiles_its_lanes_only_when_a_study_needs_them():
     own = shaken.with_lanes()
     assert own.module.LANES and own.module.PARTS["lanes"] != shaken.module.PARTS["lanes"]
     assert "rk4_stages" in own.module.PARTS["lanes"].read_text()
+
+
+def test_a_study_compiles_lanes_only_where_they_win_back_their_compile_time():
+    scene = jackbox.load_scene("spring")
+    spec = plan(scene, 10, t_end=1.0)                   # 1e4 member-steps
+    kernel = loader.kernel_for(scene)
+    assert use_lanes(dataclasses.replace(spec, lanes=True), kernel)
+    assert not use_lanes(dataclasses.replace(spec, lanes=False), kernel)
+    big = dataclasses.replace(spec, n=int(LANES_WORTH // spec.n_steps))
+    assert use_lanes(big, kernel)
+    assert use_lanes(spec, kernel) == kernel.lanes_ready()       # small: only what costs nothing to compile
+    kernel.with_lanes()
+    engine.entry("run_member_blocks")
+    assert kernel.lanes_ready() and use_lanes(spec, kernel)
