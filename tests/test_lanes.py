@@ -76,7 +76,7 @@ def test_members_in_lanes_have_the_bits_they_have_alone(name, over, t_end, entri
 
 
 def test_any_split_into_blocks_gives_the_same_bits(entries):
-    kw = dict(perturb={"theta_jack": 1e-3}, t_end=2.0, seed=1, samples=[1.0])
+    kw = dict(perturb={"theta_jack": 1e-3}, t_end=2.0, seed=1, samples=[1.0], lanes=True)
     whole = ensemble("shaken", 2 * LANES + 1, **kw)
     split = ensemble("shaken", 2 * LANES + 1, chunk=5, threads=1, **kw)   # blocks of 5, 5, 5, 2 members
     assert entries.count("run_member_blocks") >= 2
@@ -98,10 +98,10 @@ def test_a_member_that_turns_non_finite_in_a_block_says_so_as_alone(entries):
 
 
 def test_a_sweep_or_a_prescribed_box_steps_its_members_alone(entries, tmp_path):
-    ensemble("shaken", 4, sweep={"restitution": (0.5, 1.0)}, t_end=0.2)     # parameters differ
+    ensemble("shaken", 4, sweep={"restitution": (0.5, 1.0)}, t_end=0.2, lanes=True)     # parameters differ
     assert "run_members" in entries and "run_member_blocks" not in entries
     entries.clear()
-    ensemble(jackbox.load_scene(write_scene(tmp_path, PRESCRIBED)), 4, t_end=0.2)   # no lanes for it
+    ensemble(jackbox.load_scene(write_scene(tmp_path, PRESCRIBED)), 4, t_end=0.2, lanes=True)   # none for it
     assert "run_members" in entries and "run_member_blocks" not in entries
 
 
