@@ -10,9 +10,10 @@ A block's state is one array of rows of LANES floats (the members of the
 block side by side, :data:`jackbox.engine.records.BLOCK_ROWS` rows): the main
 loop over the lanes has a fixed trip count, no call and no branch, so LLVM
 (its SLP vectoriser, which :func:`jackbox.engine.bind_part` turns on for this
-part) packs the lanes into vector instructions. The terms of time (a shaking force's sine) are the
-block's: its members share their parameters, so each is computed once per
-stage time for all of them. Each lane's step is the hot path's RK4 step
+part) can pack lanes into vector instructions; it packs only part of the loop
+so far (README, "Ensembles in lanes"). The terms of time (a shaking force's
+sine) are the block's: its members share their parameters, so each is
+computed once per stage time for all of them. Each lane's step is the hot path's RK4 step
 (``rk4_stages``, the same operations in the same order), so a member stepped
 here has the bits it would have had alone.
 
@@ -30,7 +31,8 @@ the others through the exact loop, alone).
 import math
 
 from jackbox.engine.integrator import NODES as _NODES
-from jackbox.engine.records import LANES as _W, T_EVENT as _T_EVENT_L, T_GAP as _T_GAP_L, T_SPEED as _T_SPEED
+from jackbox.engine.records import BOUND_ROW as _BOUND, LANES as _W, T_EVENT as _T_EVENT_L, T_GAP as _T_GAP_L
+from jackbox.engine.records import T_SPEED as _T_SPEED
 
 # sin and cos: Cody-Waite reduction by pi/2 (its first part has 33 bits, so k * _PIO2_HI is exact for
 # |k| < 2^20, angles up to 1.6e6 rad) and the classical minimax polynomials on [-pi/4, pi/4]
@@ -71,7 +73,7 @@ def lane_speed(qd, tol):
 
 
 def lane_state(S, at, lane):
-    """Lane lane's six numbers from row ``at`` of S on."""
+    """The six numbers of lane ``lane`` from row ``at`` of S on."""
     return (S[at + lane], S[at + _W + lane], S[at + 2 * _W + lane], S[at + 3 * _W + lane], S[at + 4 * _W + lane],
             S[at + 5 * _W + lane])
 
@@ -84,8 +86,8 @@ def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):
     is to be computed again, the same at the trial's end, and the trial
     step's band). Returns the step reached: i_stop, or the step before which
     some live lane is not quiet; then the trial of that step is in S for
-    every lane and quiet[lane] says whether lane lane may take it. A lane that is
-    not live is stepped too (its numbers are not used). Free boxes only: six
+    every lane and quiet[lane] says whether that lane may take it. A lane that
+    is not live is stepped too (its numbers are not used). Free boxes only: six
     coordinates, box first.
 
     As in the hot path's ``fly``, a lane's bound is lowered by each step's
@@ -93,7 +95,7 @@ def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):
     leaves too little, in a second loop over the few lanes that need it; the
     first loop, over every lane, has no call and no branch.
     """
-    QV, QB, QVB, GA, GB, BAND = 6 * _W, 12 * _W, 18 * _W, 24 * _W, 25 * _W, 26 * _W
+    QV, QB, QVB, GA, GB, BAND = 6 * _W, 12 * _W, 18 * _W, _BOUND * _W, (_BOUND + 1) * _W, (_BOUND + 2) * _W
     margin = 2.0 * tol[_T_GAP_L] - 0.5 * tol[_T_EVENT_L]
     t = t0 + i * dt
     for lane in range(_W):

@@ -22,7 +22,7 @@ from numba import njit, prange
 
 from .draws import START, TWIN, draw_normal, draw_uniform
 from .records import (DONE, EXACT_AT, FALLBACK, IMPACT_LOG_FULL, IMPULSE, LANES, MODE_AT, MODE_SLOTS, MODEL_AT,
-                      STAGES_AT, T_BOXV, WARNING, BLOCK_ROWS, Events, ExactType, ModelType, Samples, StagesType,
+                      STAGES_AT, T_BOXV, WARNING, BLOCK_ROWS, BOUND_ROW, Events, ExactType, ModelType, Samples, StagesType,
                       from_table)
 from .tolerances import set_tolerances
 
@@ -275,7 +275,7 @@ def is_free(rest, C):
 
 @njit(cache=True, no_cpython_wrapper=True)
 def take_lane(S, lane, q, qd):
-    """Lane lane's q and qd (rows 0 .. 11 of a block's state) into q, qd."""
+    """The q and qd of lane ``lane`` (rows 0 .. 11 of a block's state) into q, qd."""
     W = LANES
     for d in range(6):
         q[d] = S[d * W + lane]
@@ -284,12 +284,12 @@ def take_lane(S, lane, q, qd):
 
 @njit(cache=True, no_cpython_wrapper=True)
 def put_lane(S, lane, q, qd):
-    """q, qd into lane lane of a block's state; its bound on the gaps to be computed again."""
+    """q, qd into lane ``lane`` of a block's state; its bound on the gaps to be computed again."""
     W = LANES
     for d in range(6):
         S[d * W + lane] = q[d]
         S[(6 + d) * W + lane] = qd[d]
-    S[24 * W + lane] = np.nan
+    S[BOUND_ROW * W + lane] = np.nan
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -387,7 +387,7 @@ def run_block(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, 
                     if quiet[lane]:            # the trial of step j is this lane's next state
                         for d in range(2 * n):
                             S[d * W + lane] = S[(2 * n + d) * W + lane]
-                        S[24 * W + lane] = S[25 * W + lane]
+                        S[BOUND_ROW * W + lane] = S[(BOUND_ROW + 1) * W + lane]
                         continue
                     # near contact: alone through the exact loop for a stretch, then back
                     take_lane(S, lane, held_q[lane], held_qd[lane])

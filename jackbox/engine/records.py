@@ -107,6 +107,8 @@ LANES = 16
 #: of the step the lanes stopped before, then the bound on every gap at the start and at the trial's end
 #: and the trial step's band
 BLOCK_ROWS = 4 * 6 + 3
+#: the row of each lane's bound on its gaps (NaN: to be computed again), the next that at the trial's end
+BOUND_ROW = 24
 
 #: integer fields of the model record, then its functions
 SIZES = ("n_dof", "n_contact", "n_wall", "e_slot", "e_ground_slot", "prescribed", "has_ground")
