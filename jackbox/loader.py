@@ -523,14 +523,19 @@ class Kernel:
                                              dt, n_steps, renorm_steps, scale, *outputs)
             stretch[again], fin[again] = outputs
 
+    @property
+    def has_lanes(self) -> bool:
+        """Whether the model has the functions an ensemble block's lanes need (a free box)."""
+        return "clearance_v" in self.module.FUNCTIONS
+
     def lanes_apply(self, P, TOL) -> bool:
         """Whether members with these parameter and tolerance rows can go through lanes (see run_members)."""
-        return (has_lanes(Path(self.__file__).read_text()) and P.shape[0] > 0
+        return (self.has_lanes and P.shape[0] > 0
                 and bool((P == P[0]).all()) and bool((TOL == TOL[0]).all()))
 
     def lanes_ready(self) -> bool:
         """Whether this model's lanes and the engine's block loop are compiled or cached (nothing to compile)."""
-        if not has_lanes(Path(self.__file__).read_text()):
+        if not self.has_lanes:
             return False
         text = binding_parts(Path(self.__file__).read_text(), lanes=True)["lanes"]
         path = part_path("lanes", text)

@@ -30,9 +30,9 @@ the others through the exact loop, alone).
 
 import math
 
+from jackbox.engine.gaps import speed_bound as _speed_bound
 from jackbox.engine.integrator import NODES as _NODES
 from jackbox.engine.records import BOUND_ROW as _BOUND, LANES as _W, T_EVENT as _T_EVENT_L, T_GAP as _T_GAP_L
-from jackbox.engine.records import T_SPEED as _T_SPEED
 
 # sin and cos: Cody-Waite reduction by pi/2 (its first part has 33 bits, so k * _PIO2_HI is exact for
 # |k| < 2^20, angles up to 1.6e6 rad) and the classical minimax polynomials on [-pi/4, pi/4]
@@ -64,12 +64,6 @@ def lane_bound(t, q, p):
     sb, cb = sincos(q[2])
     sj, cj = sincos(q[5])
     return clearance_v(t, q, p, (sb, cb, sj, cj))
-
-
-def lane_speed(qd, tol):
-    """``gaps.speed_bound`` for a free box (six rates, no prescribed motion), on a tuple."""
-    return (abs(qd[0]) * tol[_T_SPEED] + abs(qd[1]) * tol[_T_SPEED + 1] + abs(qd[2]) * tol[_T_SPEED + 2]
-            + abs(qd[3]) * tol[_T_SPEED + 3] + abs(qd[4]) * tol[_T_SPEED + 4] + abs(qd[5]) * tol[_T_SPEED + 5])
 
 
 def lane_state(S, at, lane):
@@ -116,7 +110,7 @@ def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):
             S[QB + 3 * _W + lane], S[QB + 4 * _W + lane], S[QB + 5 * _W + lane] = qn[3], qn[4], qn[5]
             S[QVB + lane], S[QVB + _W + lane], S[QVB + 2 * _W + lane] = vn[0], vn[1], vn[2]
             S[QVB + 3 * _W + lane], S[QVB + 4 * _W + lane], S[QVB + 5 * _W + lane] = vn[3], vn[4], vn[5]
-            band = dt * max(lane_speed(qd, tol), lane_speed(vn, tol)) + margin
+            band = dt * max(_speed_bound(qd, tol), _speed_bound(vn, tol)) + margin     # as in fly
             total = qn[0] + qn[1] + qn[2] + qn[3] + qn[4] + qn[5] + vn[0] + vn[1] + vn[2] + vn[3] + vn[4] + vn[5]
             c = S[GA + lane] - band
             S[GB + lane] = c
@@ -149,4 +143,4 @@ def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):
 
 #: the helpers a lanes part inlines at Numba's level (``inline="always"``): a loop over the lanes
 #: with a call left in it is not vectorised (``lane_bound`` is called from scalar loops only)
-INLINED = ("sincos", "lane_speed", "lane_state", "clearance_v")
+INLINED = ("sincos", "lane_state", "clearance_v")
