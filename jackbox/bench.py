@@ -1,6 +1,7 @@
 """Step throughput, what each skip gains, the C ceiling and ensemble scaling, in one run.
 
     jackbox bench [--scenes NAME ...] [--repeat 5] [--out DIR] [--quick] [--no-cold]
+    jackbox bench --device cuda [--repeat 3]       (the GPU's figures: jackbox.gpubench)
     python benchmarks/throughput.py ...            (the same, from a checkout)
 
 For every built-in scene (or those named), in one process and one run:
@@ -108,6 +109,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="instead: the compile-time table (first run, model edit, every feature, warm "
                              "start; new processes from empty caches), written to compile.md/.json; "
                              "--repeat defaults to 1 here")
+    parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                        help="cuda: instead, the GPU's figures (member-steps/s at 1e4-1e6 members against every "
+                             "CPU core, agreement with the CPU, kernel compile time), written to gpu.md/.json")
     parser.add_argument("--against", type=Path, metavar="CHECKOUT", default=None,
                         help="with --compile: measure another checkout's code side by side")
 
@@ -129,6 +133,10 @@ def run(args) -> int:
         return compilebench.main(argv)
     if args.against is not None:
         raise JackboxError("--against goes with --compile")
+    if getattr(args, "device", "cpu") == "cuda":
+        from . import gpubench
+
+        return gpubench.run(args)
     scenes = list(args.scenes) if args.scenes else list(builtin_scenes())
     unknown = [s for s in scenes if s not in builtin_scenes()]
     if unknown:

@@ -303,6 +303,9 @@ def _study_options(parser) -> None:
     where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                        help="send the chunks to a running Dask scheduler")
     parser.add_argument("--workers", type=_count, help="worker processes of --dask local (default: cores)")
+    parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                        help="cpu (default): every core here; cuda: one NVIDIA GPU thread per member (needs "
+                             "the numba-cuda package: pip install 'jackbox[cuda]'), the same method")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bar or summary")
 
 
@@ -339,7 +342,7 @@ def _study_kwargs(args) -> dict:
         raise JackboxError("--workers goes with --dask local")
     return {"perturb": _pairs(args.perturb, "--perturb", float), "sweep": _pairs(args.sweep, "--sweep", _span),
             "t_end": args.t_end, "dt": args.dt, "seed": args.seed, "grid": args.grid, "threads": args.threads,
-            "chunk": args.chunk, "scheduler": args.scheduler,
+            "chunk": args.chunk, "scheduler": args.scheduler, "device": args.device,
             "dask_local": (args.workers or _cores()) if args.dask == "local" else None,
             "progress": not args.quiet, "log": _say(args)}
 

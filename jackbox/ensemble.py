@@ -47,7 +47,10 @@ from .scene import COORDS, RATES, Scene, check_param, is_number, load_scene
 
 #: members per kernel call when the progress bar is on (each call is parallel inside)
 CHUNK_MEMBERS = 1024
-STATUS_NAMES = {K.DONE: "done", K.NONFINITE: "non-finite", K.STALLED: "stalled"}
+#: members per GPU launch with a progress bar (a launch fills the GPU from some 10^5 members)
+GPU_CHUNK = 1 << 18
+STATUS_NAMES = {K.DONE: "done", K.NONFINITE: "non-finite", K.STALLED: "stalled",
+                K.IMPACT_LOG_FULL: "event log full (a GPU member's step had more events than it holds)"}
 #: a perturbed start may touch a wall, but not reach into it by more than this times L
 START_TOL = 1e-9
 
@@ -70,6 +73,7 @@ class EnsembleSpec:
     d0: float = 0.0                                 #: chaos study: twin separation (scaled)
     lanes: bool | None = None                       #: blocks of lanes for members that share their parameters
                                                     #: (None: where it pays, see use_lanes)
+    device: str = "cpu"                             #: "cpu", or "cuda": one GPU thread per member (jackbox.engine.gpu)
 
     @property
     def t_end(self) -> float:
@@ -168,7 +172,7 @@ def run_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray
     fin_q, fin_qd, fin = np.zeros((m, 6)), np.zeros((m, 6)), np.zeros((m, 7))
     kernel.run_members(rows["q0"], rows["qd0"], rows["params"], rows["tol"], spec.dt, spec.n_steps,
                        np.asarray(spec.sample_steps, np.int64), samp_q, samp_qd, fin_q, fin_qd, fin,
-                       lanes=use_lanes(spec, kernel))
+                       lanes=spec.device == "cpu" and use_lanes(spec, kernel), device=spec.device)
     # a member that stopped early has no final state: NaN, not its last sample
     # (the step it reached is kept in `steps`)
     lost = fin[:, 3] != K.DONE
@@ -192,7 +196,7 @@ def run_chaos_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.n
     stretch, fin = np.zeros((m, n_intervals)), np.zeros((m, 5))
     kernel.run_twin_members(rows["q0"], rows["qd0"], np.ascontiguousarray(offset[:, :n_dof]),
                             np.ascontiguousarray(offset[:, n_dof:]), rows["params"], rows["tol"], spec.dt,
-                            spec.n_steps, spec.renorm_steps, _chaos_scale(spec), stretch, fin)
+                            spec.n_steps, spec.renorm_steps, _chaos_scale(spec), stretch, fin, device=spec.device)
     return {"stretch": stretch, "impacts": fin[:, 0].astype(np.int64), "status": fin[:, 1].astype(np.int64),
             "steps": fin[:, 2].astype(np.int64), "fallback": fin[:, 3], "warnings": fin[:, 4].astype(np.int64),
             "q0": rows["q0"], "qd0": rows["qd0"], "params": rows["params"], "offset": offset}
@@ -341,7 +345,7 @@ class ChaosStudy:
 def ensemble(scene, n: int, perturb=None, params=None, t_end=None, dt=None, seed: int = 0, *,
              sweep=None, grid: bool = False, samples=None, chunk: int | None = None, threads: int | None = None,
              scheduler: str | None = None, dask_local: int | None = None, progress: bool = False,
-             log=None, lanes: bool | None = None) -> Ensemble:
+             log=None, lanes: bool | None = None, device: str = "cpu") -> Ensemble:
     """Run n members of a scene in parallel; see the module docstring for how they differ.
 
     samples: times (s) at which to keep every member's state (rounded to whole steps).
@@ -356,9 +360,13 @@ def ensemble(scene, n: int, perturb=None, params=None, t_end=None, dt=None, seed
     free (:mod:`jackbox.engine.lanes`): the same numbers, faster. None (the
     default): where it pays (:func:`use_lanes`); True: always; False: each
     member alone.
+    device: ``"cpu"`` (default), or ``"cuda"``: each member one thread of an
+    NVIDIA GPU (:mod:`jackbox.engine.gpu`), the same method and, to round-off,
+    the same numbers; it needs the numba-cuda package (``jackbox[cuda]``).
     """
+    device = _device(device, scheduler, dask_local, lanes)
     spec = dataclasses.replace(plan(scene, n, perturb, params, sweep, t_end, dt, seed, grid, samples),
-                               lanes=None if lanes is None else bool(lanes))
+                               lanes=None if lanes is None else bool(lanes), device=device)
     # what the study will hold once every member is back: states, samples, starts, params
     S, dof = len(spec.sample_steps), len(spec.scene.dof_names)
     per_member = 8 * (12 * S + 12 + 5 + 2 * dof + len(spec.scene.param_names))
@@ -371,7 +379,7 @@ def ensemble(scene, n: int, perturb=None, params=None, t_end=None, dt=None, seed
 def chaos(scene, n: int, d0: float = 1e-8, renorm: float | None = None, perturb=None, params=None, t_end=None,
           dt=None, seed: int = 0, *, sweep=None, grid: bool = False, chunk: int | None = None,
           threads: int | None = None, scheduler: str | None = None, dask_local: int | None = None,
-          progress: bool = False, log=None) -> ChaosStudy:
+          progress: bool = False, log=None, device: str = "cpu") -> ChaosStudy:
     """Finite-time Lyapunov exponents of n members from renormalised twin trajectories.
 
     Each member (start state perturbed as in :func:`ensemble`) runs with a
@@ -384,8 +392,10 @@ def chaos(scene, n: int, d0: float = 1e-8, renorm: float | None = None, perturb=
 
     Across an impact the twins can lie on two sides of it for a moment, which
     shows as a jump of the separation; a small d0 keeps that window short.
+    device: as for :func:`ensemble` (a GPU thread runs a pair of twins).
     """
-    spec = plan(scene, n, perturb, params, sweep, t_end, dt, seed, grid, None)
+    device = _device(device, scheduler, dask_local)
+    spec = dataclasses.replace(plan(scene, n, perturb, params, sweep, t_end, dt, seed, grid, None), device=device)
     if not (is_number(d0) and math.isfinite(d0) and 0 < d0 < 1e-2):
         raise SimulationError(f"d0 must be a small positive number (below 1e-2), got {d0!r}")
     if renorm is not None and not (is_number(renorm) and math.isfinite(renorm)):
@@ -423,13 +433,21 @@ def _execute(fn, spec, chunk, threads, scheduler, dask_local, progress, log, ste
     steps_per_member = spec.n_steps if steps_per_member is None else steps_per_member
     t_load = time.perf_counter()
     kind = "chaos" if spec.renorm_steps else "ensemble"
-    kernel = _kernel(spec, kind)
-    if log and not numba.config.DISABLE_JIT and not loader.is_cached(kernel, kind):
-        log(f"compiling the engine's {kind} loop (once per machine, for every scene) ...")
-    compiled = loader.compile_kernel(kernel, kind)
+    gpu = spec.device == "cuda"
+    kernel = _kernel(spec, "setup" if gpu else kind)
+    if log and not numba.config.DISABLE_JIT and not loader.is_cached(kernel, "setup" if gpu else kind):
+        log(f"compiling the engine's {'member setup' if gpu else kind + ' loop'} (once per machine, for every "
+            f"scene) ...")
+    compiled = loader.compile_kernel(kernel, "setup" if gpu else kind)
+    if gpu:
+        from .engine import gpu as gpu_engine
+        if log and not gpu_engine.is_cached(kernel.gpu(), kind):
+            log(f"compiling the GPU {kind} kernel of {spec.scene.name} (once per machine and model, about a "
+                f"minute) ...")
+        compiled["gpu"] = gpu_engine.prepare(kernel.gpu(), kind)
     load_seconds = time.perf_counter() - t_load
     if chunk is None:
-        chunk = CHUNK_MEMBERS if (progress or scheduler or dask_local) else n
+        chunk = (GPU_CHUNK if gpu else CHUNK_MEMBERS) if (progress or scheduler or dask_local) else n
         if scheduler or dask_local:
             chunk = max(64, min(chunk, -(-n // 32)))
     if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
@@ -459,14 +477,14 @@ def _execute(fn, spec, chunk, threads, scheduler, dask_local, progress, log, ste
         finally:
             numba.set_num_threads(old)
             bar.close()
-        used = "this process"
+        used = f"GPU ({gpu_engine.device_name()})" if gpu else "this process"
     seconds = time.perf_counter() - t0
     merged = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
     meta = {"jackbox": __version__, "scene": spec.scene.name, "n": n, "seed": spec.seed, "dt": spec.dt,
             "t_end": spec.t_end, "n_steps": spec.n_steps, "chunk": chunk, "where": used, "threads": n_threads,
             "run_seconds": seconds, "load_seconds": load_seconds, "kernel_cache": compiled["cache"],
             "member_steps_per_second": n * steps_per_member / seconds if seconds > 0 else None,
-            "perturb": dict(spec.perturb), "grid": spec.grid, "params": dict(spec.params),
+            "device": spec.device, "perturb": dict(spec.perturb), "grid": spec.grid, "params": dict(spec.params),
             "sweep": {k: [lo, hi] for k, lo, hi in spec.sweep},
             "model_hash": loader.model_hash(spec.scene.structure()), "scene_tables": spec.scene.raw}
     if spec.renorm_steps:
@@ -474,8 +492,25 @@ def _execute(fn, spec, chunk, threads, scheduler, dask_local, progress, log, ste
     return merged, meta
 
 
+def _device(device, scheduler, dask_local, lanes=None) -> str:
+    """The device a study asked for, checked: one clear line where it cannot be had."""
+    if device not in ("cpu", "cuda"):
+        raise SimulationError(f"device must be 'cpu' or 'cuda', got {device!r}")
+    if device == "cuda":
+        if scheduler or dask_local:
+            raise SimulationError("device 'cuda' runs here, on this machine's GPU: not with a Dask scheduler "
+                                  "or cluster")
+        if lanes:
+            raise SimulationError("lanes are the CPU's (SIMD blocks of members): not with device 'cuda'")
+        from .engine.gpu import unavailable
+        why = unavailable()
+        if why:
+            raise SimulationError(why)
+    return device
+
+
 def _where(meta: dict) -> str:
-    return f"{meta['threads']} thread(s)" if meta["threads"] else meta["where"]
+    return meta["where"] if meta.get("device") == "cuda" or not meta["threads"] else f"{meta['threads']} thread(s)"
 
 
 def _kernel(spec: EnsembleSpec, method: str | None = None):

@@ -480,8 +480,13 @@ class Kernel:
             self.table(("naive",)), q, qd, p, float(t0), float(dt), i_begin, i_end, n_total, record_every,
             rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, kind, n_imp)
 
+    def gpu(self):
+        """This model's GPU kernels (:mod:`jackbox.engine.gpu`; the file written, the kernels compiled on first use)."""
+        from .engine import gpu
+        return gpu.load_kernels(Path(self.__file__), self.module)
+
     def run_members(self, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin,
-                    lanes: bool = False):
+                    lanes: bool = False, device: str = "cpu"):
         """Every member, in parallel (see :func:`jackbox.engine.members.run_members`); rows of the outputs filled.
 
         The stages compiled on first need (engine.LAZY) are left out while
@@ -493,8 +498,13 @@ class Kernel:
         lanes: in blocks of ``engine.LANES`` members stepped together
         (:func:`jackbox.engine.members.run_member_blocks`; the same numbers),
         where the model has lanes and every member has the parameters and
-        tolerances of the first.
+        tolerances of the first. device: ``"cuda"``, one GPU thread a member
+        (:mod:`jackbox.engine.gpu`; lanes are the CPU's).
         """
+        if device == "cuda":
+            from .engine import gpu
+            return gpu.run_members(self.gpu(), Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q,
+                                   fin_qd, fin)
         entry, kernel = "run_members", self
         if lanes and self.lanes_apply(P, TOL):
             entry, kernel = "run_member_blocks", self.with_lanes()
@@ -512,8 +522,13 @@ class Kernel:
             for whole, part in zip((samp_q, samp_qd, fin_q, fin_qd, fin), outputs):
                 whole[again] = part
 
-    def run_twin_members(self, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin):
+    def run_twin_members(self, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin,
+                         device: str = "cpu"):
         """Twins of every member, in parallel; members stopped for a stage not compiled run again (see run_members)."""
+        if device == "cuda":
+            from .engine import gpu
+            return gpu.run_twin_members(self.gpu(), Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale,
+                                        stretch, fin)
         engine.entry("run_twin_members")(self.table(), Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale,
                                          stretch, fin)
         again = np.flatnonzero(fin[:, 1] == engine.MISSING)
@@ -604,7 +619,7 @@ def kernel_for(scene: Scene, log=None, method: str | None = None) -> Kernel:
     if bound:
         engine.cool_binder()
     if method is not None:
-        engine.start(ENTRY[method], (LOOP[method],), lazy=method in LAZY_METHODS,
+        engine.start(ENTRY[method], _loops_of(method), lazy=method in LAZY_METHODS,
                      busy=sum(engine.PART_COST.get(name, 0.5) for name in unbound))
     if log and not bound:
         log(f"compiling the model functions of {scene.name} (first use of this structure) ...")
@@ -630,9 +645,11 @@ def _cached(part: str, path: Path) -> bool:
 #: the engine's entry points each method needs (the first is the one to look for in the cache)
 ENTRY = {"exact": ("run_exact", "fill_tolerances"), "naive": ("run_naive",),
          "ensemble": ("run_members", "set_up_members", "fill_tolerances"),
-         "chaos": ("run_twin_members", "set_up_members", "fill_tolerances")}
-#: the loop each method runs (compiled once as a function value)
-LOOP = {"exact": "exact", "naive": "naive", "ensemble": "exact", "chaos": "exact"}
+         "chaos": ("run_twin_members", "set_up_members", "fill_tolerances"),
+         "setup": ("set_up_members", "fill_tolerances")}
+#: the loop each method runs (compiled once as a function value; "setup", a study's members set up here
+#: and run on a GPU, runs none)
+LOOP = {"exact": "exact", "naive": "naive", "ensemble": "exact", "chaos": "exact", "setup": None}
 #: the methods whose runs leave the stages of engine.LAZY out until one needs them (see Kernel.integrate_exact
 #: and Kernel.run_members): an elastic run or study never compiles them
 LAZY_METHODS = ("exact", "ensemble", "chaos")
@@ -656,7 +673,7 @@ def compile_kernel(kernel: Kernel, method: str | None = None) -> dict:
         return {"seconds": 0.0, "cache": "disabled"}
     model, kernel._cache = kernel._cache, "memory"
     names = ENTRY[method] if method else ENTRY["exact"] + ENTRY["naive"]
-    loops = (LOOP[method],) if method else ("exact", "naive")
+    loops = _loops_of(method) if method else ("exact", "naive")
     folder = engine.cache.engine_cache_path()
     if folder is not None and str(folder) not in _verified:
         _verified.add(str(folder))
@@ -694,9 +711,13 @@ def _reset_engine(names, loops) -> None:
 def is_cached(kernel: Kernel, method: str) -> bool:
     """Whether the engine's machine code for `method` is ready (in this process or in the cache)."""
     fn = engine._dispatcher(ENTRY[method][0])
-    if getattr(fn, "signatures", None) and LOOP[method] in engine._loops:
+    if getattr(fn, "signatures", None) and all(loop in engine._loops for loop in _loops_of(method)):
         return True
-    return engine.cached(ENTRY[method][0]) and engine.cached(LOOP[method])
+    return engine.cached(ENTRY[method][0]) and all(engine.cached(loop) for loop in _loops_of(method))
+
+
+def _loops_of(method: str) -> tuple[str, ...]:
+    return () if LOOP[method] is None else (LOOP[method],)
 
 
 def _numba_files(path: Path) -> list[Path]:

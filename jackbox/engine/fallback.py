@@ -29,6 +29,8 @@ accelerations' LCP. The loop logs both hand-overs (FALLBACK events), so a
 trajectory shows where it was first order.
 """
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -149,7 +151,7 @@ def pay_from_motion(model, t, q, qd, p, before, winv):
     vy = (mb * qd[1] + mj * qd[4]) / (mb + mj)
     about = 0.5 * (mb * ((qd[0] - vx) ** 2 + (qd[1] - vy) ** 2) + qd[2] ** 2 / winv[2]
                    + mj * ((qd[3] - vx) ** 2 + (qd[4] - vy) ** 2) + qd[5] ** 2 / winv[5])
-    s = np.sqrt(1.0 - rise / about) if rise < about else 0.0
+    s = math.sqrt(1.0 - rise / about) if rise < about else 0.0
     for b in range(2):
         qd[3 * b] = vx + s * (qd[3 * b] - vx)
         qd[3 * b + 1] = vy + s * (qd[3 * b + 1] - vy)

@@ -68,7 +68,16 @@ def run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, stop, out, n_r
         if status != IMPACT_LOG_FULL:
             return i, n_rec, status, log
         if n_ev == 0:    # one step has more events than the log holds
-            log = new_log(2 * log.t.shape[0])
+            bigger = grown(log)
+            if bigger.t.shape[0] == log.t.shape[0]:     # (a log of fixed size: the GPU's)
+                return i, n_rec, status, log
+            log = bigger
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def grown(log):
+    """A log twice the size of ``log`` (on a GPU, where nothing is allocated, ``log`` itself)."""
+    return new_log(2 * log.t.shape[0])
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -80,7 +89,14 @@ def copy_to(dst, src):
 
 @njit(cache=True, no_cpython_wrapper=True)
 def new_tally():
-    tally = np.zeros(TALLY)
+    return clear_tally(np.empty(TALLY))
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def clear_tally(tally):
+    """A tally of nothing yet (``tally`` filled and returned)."""
+    for k in range(TALLY):
+        tally[k] = 0.0
     tally[TALLY_FIRST] = np.nan
     tally[TALLY_SINCE] = np.nan
     return tally
@@ -96,7 +112,15 @@ def fallback_time(tally, t):
 @njit(cache=True, no_cpython_wrapper=True)
 def new_modes(model):
     """A run's mode array (see :func:`~.loop.integrate_exact`): every contact free, the exact method on."""
-    return np.zeros(model.n_contact + MODE_SLOTS, np.int64)
+    return clear_modes(np.empty(model.n_contact + MODE_SLOTS, np.int64))
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def clear_modes(rest):
+    """Every contact free, the exact method on (``rest`` filled and returned)."""
+    for k in range(rest.shape[0]):
+        rest[k] = 0
+    return rest
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -113,11 +137,17 @@ def run_member(model, exact, stages, q0, qd0, p, tol, dt, n_steps, sample_steps,
     fin: [energy, impulses, first impulse time, status, step reached, seconds in
     the fallback, solver warnings].
     """
-    q, qd = q0.copy(), qd0.copy()
-    rest = new_modes(model)
-    log = new_log(LOG_SIZE)
-    out = new_samples(2)
-    tally = new_tally()
+    follow_member(model, exact, stages, q0.copy(), qd0.copy(), new_modes(model), p, tol, dt, n_steps, sample_steps,
+                  samp_q, samp_qd, fin_q, fin_qd, fin, new_log(LOG_SIZE), new_samples(2), new_tally())
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def follow_member(model, exact, stages, q, qd, rest, p, tol, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd,
+                  fin, log, out, tally):
+    """:func:`run_member` in the arrays it is given: the state q, qd (the start, moved on), the modes, an event
+    log, two samples and a tally (the GPU's kernel hands in arrays of its own, of fixed size)."""
+    clear_modes(rest)
+    clear_tally(tally)
     # step 0: the start, after any impulse a touching start state gets
     i, n_rec, status, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, 0, 0, out, 0, log, tally)
     s = 0
@@ -183,9 +213,16 @@ def run_twins(model, exact, stages, q0, qd0, dq, dqd, p, tol, dt, n_steps, renor
     fin: [impulses of the reference, status, step reached, seconds either
     twin spent in the fallback, solver warnings of both].
     """
+    follow_twins(model, exact, stages, q0.copy(), qd0.copy(), q0.copy(), qd0.copy(), dq, dqd, p, tol, dt, n_steps,
+                 renorm_steps, scale, stretch, fin, new_modes(model), new_modes(model), new_log(LOG_SIZE),
+                 new_log(LOG_SIZE), new_samples(2), new_tally(), new_tally())
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def follow_twins(model, exact, stages, q, qd, qt, qdt, dq, dqd, p, tol, dt, n_steps, renorm_steps, scale, stretch, fin,
+                 rest, rest_t, log, log_t, out, tally, tally_t):
+    """:func:`run_twins` in the arrays it is given (q, qd and qt, qdt: the start, twice; see :func:`follow_member`)."""
     n = model.n_dof
-    q, qd = q0.copy(), qd0.copy()
-    qt, qdt = q0.copy(), qd0.copy()
     for d in range(n):
         qt[d] += dq[d]
         qdt[d] += dqd[d]
@@ -193,10 +230,10 @@ def run_twins(model, exact, stages, q0, qd0, dq, dqd, p, tol, dt, n_steps, renor
     for d in range(n):
         d0 += (dq[d] / scale[d]) ** 2 + (dqd[d] / scale[n + d]) ** 2
     d0 = math.sqrt(d0)
-    rest, rest_t = new_modes(model), new_modes(model)
-    log, log_t = new_log(LOG_SIZE), new_log(LOG_SIZE)
-    out = new_samples(2)
-    tally, tally_t = new_tally(), new_tally()
+    clear_modes(rest)
+    clear_modes(rest_t)
+    clear_tally(tally)
+    clear_tally(tally_t)
     i = 0
     i2 = 0
     status = DONE

@@ -1,0 +1,418 @@
+"""The engine on a GPU (numba-cuda): one thread per member, the exact method's own code.
+
+Nothing here is a second engine. The functions of the other stages
+(:mod:`.loop`, :mod:`.events`, :mod:`.modes`, :mod:`.impact`, :mod:`.fallback`
+...) are compiled for the CUDA target from their own Python source
+(:func:`device`): each is cloned with its module's globals in which every
+engine function is replaced by its device version, and the three things a
+GPU thread cannot do are replaced by what it can (:data:`SUBSTITUTES`: a
+borrowed view is the array itself, a log cannot grow). A model comes in as
+device versions of its generated functions and the free-flight hot path
+(:mod:`.flight`), in the same :class:`~.records.Model` record the CPU engine
+takes, so the loops call ``model.accel`` as they do there.
+
+A kernel file holds one model: its generated text, the hot path's text and
+the kernels (:data:`KERNELS`), named by a hash of all three and of the
+engine's digest and numba-cuda's version; numba-cuda caches its machine code
+beside it, so it is compiled once per machine and never served stale. Each
+thread runs one member (:func:`~.members.follow_member`) or one pair of
+chaos twins (:func:`~.members.follow_twins`) with scratch of fixed size in
+its own local memory: no allocation, and an event log of LOG_SIZE entries
+that cannot grow (a member whose single step needs more ends with the status
+IMPACT_LOG_FULL, never silently).
+
+Under ``NUMBA_ENABLE_CUDASIM=1`` (numba-cuda's simulator) the same kernels run
+as Python on the CPU: the tests check the GPU's code path there against the
+CPU engine on machines without a GPU.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import os
+import sys
+import types as pytypes
+from collections import namedtuple
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from . import cache
+from .loop import exact_steps
+from .members import LOG_SIZE, TALLY, grown
+from .records import (MODE_SLOTS, SC, SK, SN, SIGNATURES, Stages, borrow, keep)
+
+#: members per thread block
+BLOCK = 64
+#: the stages of the exact loop in a kernel's Stages record, with the scratch the loop steps in
+GpuStages = namedtuple("GpuStages", Stages._fields + ("ws",))
+
+
+class GpuUnavailable(RuntimeError):
+    """No GPU can run a study here: numba-cuda is missing, or no CUDA device (the message says which)."""
+
+
+def unavailable() -> str | None:
+    """Why no study can run on a GPU here (one line), or None if one can (or the simulator is on)."""
+    if importlib.util.find_spec("numba_cuda") is None:
+        return ("device 'cuda' needs the numba-cuda package, which is not installed: "
+                "pip install 'jackbox[cuda]' (or use device 'cpu')")
+    if _simulated():
+        return None
+    try:
+        if not _cuda().is_available():
+            return "device 'cuda': no CUDA GPU or driver was found on this machine (use device 'cpu')"
+    except Exception as exc:        # a broken driver install: say what it said, on one line
+        return f"device 'cuda': the CUDA driver could not be used ({str(exc).splitlines()[0]})"
+    return None
+
+
+def _simulated() -> bool:
+    """Whether numba-cuda's simulator stands in for a GPU (``NUMBA_ENABLE_CUDASIM=1``)."""
+    return os.environ.get("NUMBA_ENABLE_CUDASIM", "0") not in ("", "0")
+
+
+# ---------------------------------------------------------------------------
+# engine functions as device functions
+
+
+def _same(x):
+    return x
+
+
+def _nothing(x):
+    return None
+
+
+#: what a GPU thread does instead: a view that holds no reference is the array itself (nothing is
+#: counted there), nothing needs keeping alive, and a log cannot grow (see members.run_segment)
+SUBSTITUTES = {id(borrow): _same, id(keep): _nothing, id(grown): _same}
+_devices: dict = {}
+_shadows: dict = {}
+
+
+def _cuda():
+    from numba import cuda
+    return cuda
+
+
+#: the functions kept out of line in the GPU's code, as the CPU engine keeps them (its function values,
+#: jackbox.engine.LOOPS): NVVM would inline the whole call tree into the kernel and take minutes
+#: optimising it (7.5 min for the members kernel, against 27 s with these out of line)
+OUT_OF_LINE = ("rk4", "update_contacts", "first_crossing", "first_release", "fallback_step", "hold", "run_segment")
+
+
+def device(fn):
+    """The device version of an engine function (a CPU dispatcher or a plain function), made once."""
+    py = getattr(fn, "py_func", fn)
+    key = id(py)
+    if key not in _devices:
+        if id(fn) in SUBSTITUTES:
+            _devices[key] = _cuda().jit(device=True)(SUBSTITUTES[id(fn)])
+        else:
+            clone = pytypes.FunctionType(py.__code__, _shadow(py.__module__), py.__name__, py.__defaults__,
+                                         py.__closure__)
+            clone.__module__, clone.__qualname__, clone.__doc__ = py.__module__, py.__qualname__, py.__doc__
+            _devices[key] = _typed_once(_cuda().jit(device=True)(clone), py.__name__ in OUT_OF_LINE)
+    return _devices[key]
+
+
+def _typed_once(dispatcher, out_of_line: bool):
+    """A device function compiled once for its argument types, constants among them taken as their type.
+
+    numba-cuda compiles a device function again for each literal value it is
+    called with (``run_segment(..., 0, ...)`` and ``(..., 1, ...)``: two
+    copies of everything below); here every argument is widened first. With
+    out_of_line the function is marked ``noinline`` for NVVM.
+    """
+    if _simulated():
+        return dispatcher
+    from numba.core import types
+    compile_device = dispatcher.compile_device
+
+    def compile_widened(args, return_type=None):
+        args = tuple(types.unliteral(a) for a in args)
+        new = args not in dispatcher.overloads
+        cres = compile_device(args, return_type)
+        if new and out_of_line:
+            cres.library.get_function(cres.fndesc.llvm_func_name).attributes.add("noinline")
+        return cres
+
+    dispatcher.compile_device = compile_widened
+    return dispatcher
+
+
+def _is_engine_function(value) -> bool:
+    return isinstance(value, numba.core.dispatcher.Dispatcher) or id(value) in SUBSTITUTES
+
+
+def _shadow(module_name: str) -> dict:
+    """The globals of an engine module with each engine function in them replaced by its device version."""
+    if module_name not in _shadows:
+        shadow = _shadows[module_name] = dict(vars(sys.modules[module_name]))
+        for name, value in list(shadow.items()):
+            if _is_engine_function(value):
+                shadow[name] = device(value)
+    return _shadows[module_name]
+
+
+def to_device(namespace: dict) -> None:
+    """Every function of a kernel file's namespace as a device function, in place (see :data:`KERNELS`).
+
+    Its own functions (the model's and the hot path's, which call each other
+    by name) are wrapped where they are; the engine's it imported are
+    replaced by their device versions.
+    """
+    cuda = _cuda()
+    for name, value in list(namespace.items()):
+        if name.startswith("__") or name in KERNEL_NAMES:
+            continue
+        if _is_engine_function(value):
+            namespace[name] = device(value)
+        elif isinstance(value, pytypes.FunctionType) and value.__module__ == namespace["__name__"]:
+            namespace[name] = cuda.jit(device=True)(value)
+
+
+def exact_on(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec, log,
+             n_ev):
+    """The exact loop as :func:`~.loop.integrate_exact` is called, in the scratch the kernel put in ``stages``.
+
+    The scratch is zeroed first, as the CPU's is made (``np.zeros``) for each
+    call: a GPU's local memory starts with whatever was there.
+    """
+    ws = stages.ws
+    for a in (ws.work, ws.jac, ws.c, ws.n, ws.A, ws.sub, ws.lu):
+        for i in range(a.shape[0]):
+            for j in range(a.shape[1]):
+                a[i, j] = 0.0
+    for i in range(ws.k.shape[0]):
+        for j in range(ws.k.shape[1]):
+            ws.k[i, j] = 0
+    for i in range(ws.rest0.shape[0]):
+        ws.rest0[i] = 0
+    for a in (ws.ext, ws.box):
+        for i in range(a.shape[0]):
+            a[i] = 0.0
+    return exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec,
+                       log, n_ev, ws)
+
+
+def lanes_none(t0, dt, i, i_stop, S, p, tol, live, quiet):
+    """(a kernel's model has no lanes: a GPU's member is a thread)"""
+    return i
+
+
+# ---------------------------------------------------------------------------
+# the kernel file of a model
+
+#: the kernels of a kernel file, and their argument types (as run_members and run_twin_members pass them)
+KERNEL_NAMES = ("members", "twins")
+
+#: what follows the model's and the hot path's text in a kernel file: {N_DOF} ... are the model's; the
+#: helpers that make local arrays are inlined by Numba (``inline="always"``), so the arrays are the kernel's
+KERNELS = '''
+
+# ---------------------------------------------------------------------------
+# the kernels (jackbox.engine.gpu): one thread per member
+from numba import cuda as _cuda, float64 as _f8, int64 as _i8
+from jackbox.engine import gpu as _gpu
+from jackbox.engine.members import follow_member as _follow_member, follow_twins as _follow_twins
+from jackbox.engine.records import Events as _Events, Model as _Model, Samples as _Samples, Scratch as _Scratch
+
+_gpu.to_device(globals())
+_exact = _gpu.device(_gpu.exact_on)
+_lanes = _gpu.device(_gpu.lanes_none)
+_step, _update, _crossing, _release, _fallback, _hold = _gpu.stage_devices()
+_N, _C, _NP, _NT, _NR = {N_DOF}, {N_CONTACT}, {N_PARAM}, {N_TOL}, {N_REST}
+
+
+@_cuda.jit(device=True, inline="always")
+def _model():
+    return _Model({N_DOF}, {N_CONTACT}, {N_WALL}, {E_SLOT}, {E_GROUND_SLOT}, {PRESCRIBED}, {HAS_GROUND},
+                  {FUNCTIONS}, _lanes)
+
+
+@_cuda.jit(device=True, inline="always")
+def _stages():
+    ws = _Scratch(_cuda.local.array((9, _N), _f8), _cuda.local.array((_C, _N), _f8),
+                  _cuda.local.array(({SC}, _C), _f8), _cuda.local.array(({SN}, _N), _f8),
+                  _cuda.local.array(({SK}, _C), _i8), _cuda.local.array(_NR, _i8),
+                  _cuda.local.array((_C, _C), _f8), _cuda.local.array((_C, _C), _f8),
+                  _cuda.local.array((_C, _C), _f8), _cuda.local.array(2, _f8), _cuda.local.array(6, _f8))
+    return _gpu.GpuStages(_step, _update, _crossing, _release, _fallback, _hold, 0, ws)
+
+
+@_cuda.jit(device=True, inline="always")
+def _log():
+    return _Events(_cuda.local.array({LOG_SIZE}, _f8), _cuda.local.array({LOG_SIZE}, _i8),
+                   _cuda.local.array({LOG_SIZE}, _i8))
+
+
+@_cuda.jit(device=True, inline="always")
+def _samples():
+    return _Samples(_cuda.local.array(2, _f8), _cuda.local.array((2, 6), _f8), _cuda.local.array((2, 6), _f8),
+                    _cuda.local.array(2, _f8))
+
+
+@_cuda.jit(device=True, inline="always")
+def _copy(dst, src):
+    for i in range(src.shape[0]):
+        dst[i] = src[i]
+    return dst
+
+
+@_cuda.jit(cache=True)
+def members(Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
+    j = _cuda.grid(1)
+    if j < Q0.shape[0]:
+        # the member's rows in local memory (read at every stage: coalesced there, and cached)
+        q, qd = _copy(_cuda.local.array(_N, _f8), Q0[j]), _copy(_cuda.local.array(_N, _f8), QD0[j])
+        p, tol = _copy(_cuda.local.array(_NP, _f8), P[j]), _copy(_cuda.local.array(_NT, _f8), TOL[j])
+        _follow_member(_model(), _exact, _stages(), q, qd, _cuda.local.array(_NR, _i8), p, tol, dt, n_steps,
+                       sample_steps, samp_q[j], samp_qd[j], fin_q[j], fin_qd[j], fin[j], _log(), _samples(),
+                       _cuda.local.array({TALLY}, _f8))
+
+
+@_cuda.jit(cache=True)
+def twins(Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin):
+    j = _cuda.grid(1)
+    if j < Q0.shape[0]:
+        q, qd = _copy(_cuda.local.array(_N, _f8), Q0[j]), _copy(_cuda.local.array(_N, _f8), QD0[j])
+        qt, qdt = _copy(_cuda.local.array(_N, _f8), Q0[j]), _copy(_cuda.local.array(_N, _f8), QD0[j])
+        p, tol = _copy(_cuda.local.array(_NP, _f8), P[j]), _copy(_cuda.local.array(_NT, _f8), TOL[j])
+        _follow_twins(_model(), _exact, _stages(), q, qd, qt, qdt, DQ[j], DQD[j], p, tol, dt, n_steps, renorm_steps,
+                      scale, stretch[j], fin[j], _cuda.local.array(_NR, _i8), _cuda.local.array(_NR, _i8), _log(),
+                      _log(), _samples(), _cuda.local.array({TALLY}, _f8), _cuda.local.array({TALLY}, _f8))
+'''
+
+
+def stage_devices():
+    """The device versions of the exact loop's stages, in the order of :class:`~.records.Stages`."""
+    from . import LOOPS
+    out = []
+    for name in Stages._fields[:-1]:
+        module, function, _, _ = LOOPS[name]
+        out.append(device(getattr(importlib.import_module(f"{__package__}.{module}"), function)))
+    return tuple(out)
+
+
+def kernel_text(model_text: str, flight_text: str, constants: dict) -> str:
+    """The text of a model's kernel file (see :data:`KERNELS`)."""
+    from ..loader import _with_stubs
+    functions = ", ".join(name for name in SIGNATURES if name != "lanes")
+    filled = KERNELS
+    for key, value in {**constants, "FUNCTIONS": functions, "SC": SC, "SN": SN, "SK": SK, "MODE_SLOTS": MODE_SLOTS,
+                       "LOG_SIZE": LOG_SIZE, "TALLY": TALLY}.items():
+        filled = filled.replace("{" + key + "}", str(value))
+    return _with_stubs(model_text) + "\n\n" + flight_text + filled
+
+
+def kernel_constants(module) -> dict:
+    """The model's sizes a kernel file fixes (its local arrays have constant shapes)."""
+    from .records import T_SPEED
+    return {"N_DOF": module.N_DOF, "N_CONTACT": module.N_CONTACT, "N_PARAM": module.N_PARAM,
+            "N_TOL": T_SPEED + module.N_DOF, "N_WALL": module.N_WALL_CONTACT, "E_SLOT": module.E_SLOT,
+            "E_GROUND_SLOT": module.E_GROUND_SLOT, "PRESCRIBED": int(module.PRESCRIBED),
+            "HAS_GROUND": int(module.HAS_GROUND), "N_REST": module.N_CONTACT + MODE_SLOTS}
+
+
+def kernel_path(text: str) -> Path:
+    """Where a kernel file lives: named by a hash of its text, the engine's digest and numba-cuda's version."""
+    from importlib.metadata import version
+    key = hashlib.sha256("\0".join([text, cache.DIGEST, version("numba-cuda")]).encode()).hexdigest()[:16]
+    return cache.cache_dir() / "gpu" / f"kernel_{key}.py"
+
+
+_kernels: dict = {}
+
+
+def load_kernels(model_file: Path, module, flight_text: str | None = None):
+    """The kernel module of a model (written to the cache on first use; compiled by numba-cuda on first launch)."""
+    from ..fileio import write_atomic
+    from ..loader import FLIGHT_SOURCE
+    flight_text = FLIGHT_SOURCE.read_text() if flight_text is None else flight_text
+    text = kernel_text(Path(model_file).read_text(), flight_text, kernel_constants(module))
+    path = kernel_path(text)
+    if path in _kernels:
+        return _kernels[path]
+    if not path.exists() or path.read_text() != text:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(path, text)
+    spec = importlib.util.spec_from_file_location(f"jackbox_gpu_{path.stem}", path)
+    kernels = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = kernels
+    spec.loader.exec_module(kernels)
+    _kernels[path] = kernels
+    return kernels
+
+
+def _signatures():
+    """The argument types of each kernel, as :func:`run_members` and :func:`run_twin_members` pass them."""
+    from numba.core import types
+    f8, i8 = types.float64, types.int64
+    V1, V2, V3 = (types.Array(f8, d, "C") for d in (1, 2, 3))
+    return {"members": (V2, V2, V2, V2, f8, i8, types.Array(i8, 1, "C"), V3, V3, V2, V2, V2),
+            "twins": (V2, V2, V2, V2, V2, V2, f8, i8, i8, V1, V2, V2)}
+
+
+#: the kernel a study of each kind runs
+KIND_KERNEL = {"ensemble": "members", "chaos": "twins"}
+
+
+def is_cached(kernels, kind: str) -> bool:
+    """Whether the kernel of a study of this kind is compiled here or in numba-cuda's cache beside its file."""
+    name = KIND_KERNEL[kind]
+    if _simulated() or getattr(kernels, name).overloads:
+        return True
+    path = Path(kernels.__file__)
+    return any(path.parent.glob(f"__pycache__/{path.stem}.{name}-*.nbi"))
+
+
+def prepare(kernels, kind: str) -> str:
+    """Compile (or load from the cache) the kernel of a study of this kind: "memory", "hit" or "miss"."""
+    name = KIND_KERNEL[kind]
+    kernel = getattr(kernels, name)
+    if _simulated():
+        return "simulator"
+    if kernel.overloads:
+        return "memory"
+    hit = is_cached(kernels, kind)
+    kernel.compile(_signatures()[name])
+    return "hit" if hit else "miss"
+
+
+def device_name() -> str:
+    """The GPU's name (numba-cuda's simulator says so)."""
+    if _simulated():
+        return "numba-cuda simulator"
+    name = _cuda().get_current_device().name
+    return name.decode() if isinstance(name, bytes) else str(name)
+
+
+def run_members(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin) -> None:
+    """:func:`jackbox.engine.members.run_members` on the GPU: the outputs' rows filled, one thread a member."""
+    _launch(kernels.members, Q0.shape[0], (Q0, QD0, P, TOL), (float(dt), int(n_steps)), (sample_steps,),
+            (samp_q, samp_qd, fin_q, fin_qd, fin))
+
+
+def run_twin_members(kernels, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin) -> None:
+    """:func:`jackbox.engine.members.run_twin_members` on the GPU, one thread a pair of twins."""
+    _launch(kernels.twins, Q0.shape[0], (Q0, QD0, DQ, DQD, P, TOL), (float(dt), int(n_steps), int(renorm_steps)),
+            (scale,), (stretch, fin))
+
+
+def _launch(kernel, n: int, inputs, scalars, shared, outputs) -> None:
+    """``kernel`` over n members (one thread each): inputs and outputs copied to the GPU, outputs back."""
+    if n == 0:
+        return
+    cuda = _cuda()
+    stream = cuda.stream()
+    ins = [cuda.to_device(np.ascontiguousarray(a), stream=stream) for a in (*inputs, *shared)]
+    outs = [cuda.to_device(a, stream=stream) for a in outputs]
+    args = ins[:len(inputs)] + list(scalars) + ins[len(inputs):] + outs
+    kernel[(n + BLOCK - 1) // BLOCK, BLOCK, stream](*args)
+    for host, dev in zip(outputs, outs):
+        dev.copy_to_host(host, stream=stream)
+    stream.synchronize()

@@ -1,0 +1,164 @@
+"""The GPU target (jackbox.engine.gpu): its code path on numba-cuda's simulator, its errors, a real GPU.
+
+The simulator runs the kernels' Python on the CPU: the engine's own functions,
+cloned for the CUDA target, with scratch of fixed size, as a GPU thread runs
+them. Its numbers are the CPU engine's bit for bit (Python's float arithmetic
+is the compiled code's, with no FMA contraction on either side), so these
+tests ask for equality, and they check on every machine the GPU's logic: the
+member and twin kernels, the fixed-size scratch and log, the model record of
+device functions. On a real GPU the numbers differ by round-off (FMA, the
+device's sin and cos): ``test_a_real_gpu_gives_the_cpus_numbers`` holds them
+to 1e-10 where one is present.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from jackbox.errors import SimulationError
+
+HAS_NUMBA_CUDA = importlib.util.find_spec("numba_cuda") is not None
+needs_numba_cuda = pytest.mark.skipif(not HAS_NUMBA_CUDA, reason="numba-cuda is not installed (pip install "
+                                                                 "'jackbox[dev]' installs it for its simulator)")
+
+#: run in a process of its own: the simulator is chosen when numba.cuda is first imported
+SIMULATED = r"""
+import json, sys
+import numpy as np
+from numba.cuda.simulator import kernelapi
+
+def poisoned(self, shape, dtype, alignment=None):
+    # a GPU's local memory holds whatever was there: here NaN, or a huge integer
+    out = np.empty(shape, kernelapi.numpy_support.as_dtype(dtype) if hasattr(dtype, "key") else dtype)
+    out.fill(np.nan if out.dtype.kind == "f" else 1 << 40)
+    return out
+
+kernelapi.FakeCUDALocal.array = poisoned
+from jackbox.ensemble import chaos, ensemble
+from jackbox.scene import load_scene
+
+def same(a, b):
+    return bool(np.array_equal(a, b, equal_nan=True))
+
+out = {}
+for name, path, over, n, t in json.loads(sys.argv[1]):
+    scene = load_scene(path or name, over)
+    kw = dict(perturb={"theta_jack": 0.3}, t_end=t, samples=[t / 2])
+    a, b = ensemble(scene, n, **kw), ensemble(scene, n, device="cuda", **kw)
+    out[name] = {key: same(getattr(a, key), getattr(b, key))
+                 for key in ("q", "qd", "energy", "impacts", "first_impact_t", "status", "steps", "fallback",
+                             "warnings", "samples_q", "samples_qd")}
+    out[name]["impulses"] = int(a.impacts.sum())
+    out[name]["where"] = b.meta["where"]
+c = chaos("drop", 2, t_end=0.3, renorm=0.1, perturb={"theta_jack": 0.3})
+d = chaos("drop", 2, t_end=0.3, renorm=0.1, perturb={"theta_jack": 0.3}, device="cuda")
+out["chaos"] = {"stretch": same(c.stretch, d.stretch), "impacts": same(c.impacts, d.impacts),
+                "finite": bool(np.isfinite(c.stretch).all())}
+print(json.dumps(out))
+"""
+
+
+def _simulate(cases) -> dict:
+    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1", PYTHONWARNINGS="ignore")
+    proc = subprocess.run([sys.executable, "-c", SIMULATED, json.dumps(cases)], capture_output=True, text=True,
+                          env=env, timeout=1200)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+@needs_numba_cuda
+def test_the_gpus_kernels_give_the_cpus_numbers_on_the_simulator(tmp_path):
+    from .conftest import PRESCRIBED
+
+    hand = tmp_path / "hand.toml"
+    hand.write_text(PRESCRIBED)
+    cases = [("shaken", None, {}, 3, 0.3),
+             ("drop", None, {"restitution": "0.6"}, 3, 0.6),       # impacts and held contacts
+             ("hand", str(hand), {}, 2, 0.3)]                      # a prescribed box: 3 integrated coordinates
+    out = _simulate(cases)
+    for name, *_ in cases:
+        assert out[name]["where"] == "GPU (numba-cuda simulator)"
+        differ = [key for key, equal in out[name].items() if equal is False]
+        assert not differ, f"{name}: the GPU's {', '.join(differ)} differ from the CPU's"
+    assert out["drop"]["impulses"] > 0          # the contact path ran
+    assert out["chaos"] == {"stretch": True, "impacts": True, "finite": True}
+
+
+@needs_numba_cuda
+def test_a_gpu_thread_runs_the_engines_own_functions():
+    """The stages are the CPU engine's code compiled for the GPU, not copies: one edit reaches both."""
+    from jackbox.engine import events, gpu, loop, modes
+
+    for fn in (loop.exact_steps, modes.update_contacts, events.first_crossing):
+        assert gpu.device(fn).py_func.__code__ is fn.py_func.__code__
+    clone = gpu.device(loop.exact_steps).py_func
+    assert clone.__globals__["advance"] is gpu.device(loop.advance)        # its callees are device functions too
+    assert gpu.device(loop.borrow).py_func is gpu.SUBSTITUTES[id(loop.borrow)]
+
+
+def test_device_cuda_without_numba_cuda_says_what_to_install(monkeypatch):
+    from jackbox import ensemble as ens
+    from jackbox.engine import gpu
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "numba_cuda" else real(name, *a))
+    why = gpu.unavailable()
+    assert "numba-cuda" in why and "jackbox[cuda]" in why and "\n" not in why
+    with pytest.raises(SimulationError, match="numba-cuda"):
+        ens.ensemble("shaken", 2, t_end=0.01, device="cuda")
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"device": "gpu"}, "device must be 'cpu' or 'cuda'"),
+    ({"device": "cuda", "dask_local": 2}, "not with a Dask"),
+    ({"device": "cuda", "lanes": True}, "lanes are the CPU's"),
+])
+def test_bad_device_requests_are_refused_before_anything_runs(kwargs, match):
+    from jackbox import ensemble as ens
+
+    with pytest.raises(SimulationError, match=match):
+        ens.ensemble("shaken", 2, t_end=0.01, **kwargs)
+
+
+@needs_numba_cuda
+def test_the_cli_without_a_gpu_says_so_in_one_line(tmp_path):
+    from jackbox.engine import gpu
+
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_ENABLE_CUDASIM"}
+    if gpu.unavailable() is None and not gpu._simulated():
+        pytest.skip("this machine has a GPU: the CLI runs there (test_a_real_gpu_gives_the_cpus_numbers)")
+    proc = subprocess.run([sys.executable, "-m", "jackbox.cli", "ensemble", "shaken", "--n", "2", "--t-end", "0.01",
+                           "--device", "cuda", "--out", str(tmp_path / "out")], capture_output=True, text=True,
+                          env=env, timeout=600)
+    assert proc.returncode != 0
+    assert "Traceback" not in proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("jackbox: error: device 'cuda'"), proc.stderr
+    assert not (tmp_path / "out").exists()                 # nothing half-written
+
+
+def _gpu_here() -> bool:
+    if not HAS_NUMBA_CUDA or os.environ.get("NUMBA_ENABLE_CUDASIM", "0") not in ("", "0"):
+        return False
+    from jackbox.engine import gpu
+    return gpu.unavailable() is None
+
+
+@pytest.mark.skipif(not _gpu_here(), reason="no CUDA GPU here (the simulator test checks the GPU's code path)")
+@pytest.mark.parametrize("name, over", [("shaken", {}), ("drop", {"restitution": "0.6"}), ("spring", {})])
+def test_a_real_gpu_gives_the_cpus_numbers(name, over):
+    from jackbox.ensemble import ensemble
+    from jackbox.scene import load_scene
+
+    scene = load_scene(name, over)
+    kw = dict(perturb={"theta_jack": 0.3}, t_end=1.0)
+    a, b = ensemble(scene, 256, **kw), ensemble(scene, 256, device="cuda", **kw)
+    assert np.array_equal(a.impacts, b.impacts) and np.array_equal(a.status, b.status)
+    assert np.nanmax(np.abs(a.q - b.q)) <= 1e-10 and np.nanmax(np.abs(a.qd - b.qd)) <= 1e-10
