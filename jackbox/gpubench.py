@@ -17,6 +17,9 @@ In one run, on one machine (an NVIDIA GPU and the CPU cores beside it):
   members x 3 s, on the GPU, against the CPU on all its cores (the CPU's best
   way: lanes where they apply) over fewer members (its rate does not depend on
   n); member-steps per second of the whole study (setup, copies, run);
+* rounds: shaken at the largest n and drop e = 0.6 again with the members in
+  rounds (:func:`jackbox.engine.gpu.run_rounds`: members near contact packed
+  into warps of their own), their agreement with the CPU too;
 * divergence: drop e = 0.6 with every member the same (all threads of a warp
   take the same branches) against perturbed members (they settle at
   different times), the same n.
@@ -150,6 +153,7 @@ def compile_times() -> dict:
 def agreement(size: dict) -> dict:
     """Every built-in scene on the GPU and the CPU: final states, impulse counts; shaken's FTLEs."""
     from . import bench
+    from .engine import gpu
     from .scene import builtin_scenes
 
     n, t = size["agree_n"], size["agree_t"]
@@ -158,12 +162,18 @@ def agreement(size: dict) -> dict:
         bench._say(f"agreement: {scene}, {n} members x {t:g} s, GPU and CPU")
         over = DROP_OVER if scene == "drop" else None
         a = _study(scene, n, t, "cpu", over, perturb={"theta_jack": 0.3})
-        b = _study(scene, n, t, "cuda", over, perturb={"theta_jack": 0.3})
-        scenes.append({"scene": scene, "n": n, "t_end": t, "over": over or {},
-                       "max_state_difference": float(max(np.nanmax(np.abs(a.q - b.q)), np.nanmax(np.abs(a.qd - b.qd)))),
-                       "same_impulses": bool(np.array_equal(a.impacts, b.impacts)),
-                       "same_status": bool(np.array_equal(a.status, b.status)),
-                       "impulses_per_member": float(a.impacts.mean())})
+        for rounds in (False, True):
+            gpu.ROUNDS, saved = rounds, gpu.ROUNDS
+            try:
+                b = _study(scene, n, t, "cuda", over, perturb={"theta_jack": 0.3})
+            finally:
+                gpu.ROUNDS = saved
+            scenes.append({"scene": scene, "rounds": rounds, "n": n, "t_end": t, "over": over or {},
+                           "max_state_difference": float(max(np.nanmax(np.abs(a.q - b.q)),
+                                                             np.nanmax(np.abs(a.qd - b.qd)))),
+                           "same_impulses": bool(np.array_equal(a.impacts, b.impacts)),
+                           "same_status": bool(np.array_equal(a.status, b.status)),
+                           "impulses_per_member": float(a.impacts.mean())})
     bench._say(f"agreement: shaken chaos, {n} twin pairs x {t:g} s")
     a = _study("shaken", n, t, "cpu", chaos=True, perturb={"theta_jack": 0.3})
     b = _study("shaken", n, t, "cuda", chaos=True, perturb={"theta_jack": 0.3})
@@ -172,7 +182,18 @@ def agreement(size: dict) -> dict:
     return {"scenes": scenes, "chaos": chaos}
 
 
-def _rates(scene: str, n: int, t: float, device: str, repeat: int, over=None, perturb=PERTURB) -> dict:
+def _rates(scene: str, n: int, t: float, device: str, repeat: int, over=None, perturb=PERTURB,
+           rounds: bool = False) -> dict:
+    from .engine import gpu
+
+    gpu.ROUNDS, saved = rounds, gpu.ROUNDS
+    try:
+        return _rates_now(scene, n, t, device, repeat, over, perturb) | {"rounds": rounds}
+    finally:
+        gpu.ROUNDS = saved
+
+
+def _rates_now(scene, n, t, device, repeat, over, perturb) -> dict:
     _study(scene, min(n, 64), min(t, 0.01), device, over, perturb)         # loaded, not timed
     rates, seconds = [], []
     for _ in range(repeat):
@@ -199,6 +220,9 @@ def throughput(size: dict, repeat: int) -> dict:
     rows.append(_rates("drop", size["drop_n"], size["drop_t"], "cuda", repeat, DROP_OVER))
     bench._say(f"throughput: drop e = 0.6, {size['cpu_drop_n']} members on the CPU x {repeat}")
     rows.append(_rates("drop", size["cpu_drop_n"], size["drop_t"], "cpu", repeat, DROP_OVER))
+    bench._say("throughput: the same GPU studies in rounds (jackbox.engine.gpu.run_rounds)")
+    rows.append(_rates("shaken", size["shaken_n"][-1], size["shaken_t"], "cuda", repeat, rounds=True))
+    rows.append(_rates("drop", size["drop_n"], size["drop_t"], "cuda", repeat, DROP_OVER, rounds=True))
 
     def best(scene, device):
         return max((r for r in rows if r["scene"] == scene and r["device"] == device),
@@ -224,8 +248,8 @@ def targets(result: dict) -> list[dict]:
     rows = result["throughput"]["rows"]
 
     def rate(scene, n):
-        return next((r["member_steps_per_second"] for r in rows if r["scene"] == scene and r["device"] == "cuda"
-                     and r["n"] == n), float("nan"))
+        return max((r["member_steps_per_second"] for r in rows if r["scene"] == scene and r["device"] == "cuda"
+                    and r["n"] == n), default=float("nan"))
 
     size = result["sizes"]
     comp = result["compile"]["kernels"]
@@ -260,7 +284,8 @@ def markdown(result: dict) -> str:
               "|---|---|---|---|---|---|"]
     for r in result["throughput"]["rows"]:
         what = r["scene"] + (" e = 0.6" if r["over"] else "")
-        lines.append(f"| {what} | {r['device']} | {r['n']:,} | {r['t_end']:g} | {r['member_steps_per_second']:.3g} "
+        device = r["device"] + (", rounds" if r.get("rounds") else "")
+        lines.append(f"| {what} | {device} | {r['n']:,} | {r['t_end']:g} | {r['member_steps_per_second']:.3g} "
                      f"| {r['impulses_per_member']:.3g} |")
     ratio = result["throughput"]["gpu_over_cpu"]
     lines += ["", f"GPU over all CPU cores: shaken {ratio['shaken']:.0f}x, drop e = 0.6 {ratio['drop']:.0f}x.", ""]
@@ -272,7 +297,7 @@ def markdown(result: dict) -> str:
               "| scene | members | s | largest state difference | same impulse counts | same status |",
               "|---|---|---|---|---|---|"]
     for a in result["agreement"]["scenes"]:
-        lines.append(f"| {a['scene']} | {a['n']} | {a['t_end']:g} | {a['max_state_difference']:.2g} | "
+        lines.append(f"| {a['scene']}{' (rounds)' if a.get('rounds') else ''} | {a['n']} | {a['t_end']:g} | {a['max_state_difference']:.2g} | "
                      f"{'yes' if a['same_impulses'] else '**NO**'} | {'yes' if a['same_status'] else '**NO**'} |")
     c = result["agreement"]["chaos"]
     lines += ["", f"Chaos study of shaken ({c['n']} twin pairs, {c['t_end']:g} s): FTLEs differ by at most "

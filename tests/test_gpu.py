@@ -41,8 +41,11 @@ def poisoned(self, shape, dtype, alignment=None):
     return out
 
 kernelapi.FakeCUDALocal.array = poisoned
+from jackbox.engine import gpu
 from jackbox.ensemble import chaos, ensemble
 from jackbox.scene import load_scene
+
+gpu.ROUNDS = json.loads(sys.argv[2])
 
 def same(a, b):
     return bool(np.array_equal(a, b, equal_nan=True))
@@ -65,16 +68,20 @@ print(json.dumps(out))
 """
 
 
-def _simulate(cases) -> dict:
+def _simulate(cases, rounds: bool) -> dict:
     env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1", PYTHONWARNINGS="ignore")
-    proc = subprocess.run([sys.executable, "-c", SIMULATED, json.dumps(cases)], capture_output=True, text=True,
+    proc = subprocess.run([sys.executable, "-c", SIMULATED, json.dumps(cases), json.dumps(rounds)],
+                          capture_output=True, text=True,
                           env=env, timeout=1200)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
 @needs_numba_cuda
-def test_the_gpus_kernels_give_the_cpus_numbers_on_the_simulator(tmp_path):
+@pytest.mark.parametrize("rounds", [False, True], ids=["one-go", "rounds"])
+def test_the_gpus_kernels_give_the_cpus_numbers_on_the_simulator(tmp_path, rounds):
+    """Each member in one thread from start to end, and in rounds (fly, then the exact loop for those near
+    contact, packed): the CPU's numbers either way."""
     from .conftest import PRESCRIBED
 
     hand = tmp_path / "hand.toml"
@@ -82,7 +89,7 @@ def test_the_gpus_kernels_give_the_cpus_numbers_on_the_simulator(tmp_path):
     cases = [("shaken", None, {}, 3, 0.3),
              ("drop", None, {"restitution": "0.6"}, 3, 0.6),       # impacts and held contacts
              ("hand", str(hand), {}, 2, 0.3)]                      # a prescribed box: 3 integrated coordinates
-    out = _simulate(cases)
+    out = _simulate(cases, rounds)
     for name, *_ in cases:
         assert out[name]["where"] == "GPU (numba-cuda simulator)"
         differ = [key for key, equal in out[name].items() if equal is False]

@@ -40,9 +40,10 @@ import numba
 import numpy as np
 
 from . import cache
-from .loop import exact_steps
-from .members import LOG_SIZE, TALLY, grown
-from .records import (MODE_SLOTS, SC, SK, SN, SIGNATURES, Stages, borrow, keep)
+from .loop import exact_steps, record
+from .members import (LOG_SIZE, TALLY, TALLY_FIRST, TALLY_IMPULSES, TALLY_WARNINGS, clear_modes, clear_tally,
+                      copy_to, fallback_time, grown, is_free, run_segment)
+from .records import DONE, MODE_SLOTS, SC, SK, SN, SIGNATURES, Stages, borrow, keep
 
 #: members per thread block
 BLOCK = 64
@@ -153,7 +154,8 @@ def _shadow(module_name: str) -> dict:
     if module_name not in _shadows:
         shadow = _shadows[module_name] = dict(vars(sys.modules[module_name]))
         for name, value in list(shadow.items()):
-            if _is_engine_function(value):
+            if _is_engine_function(value) or (isinstance(value, pytypes.FunctionType)
+                                               and value.__module__ == module_name):
                 shadow[name] = device(value)
     return _shadows[module_name]
 
@@ -205,10 +207,104 @@ def lanes_none(t0, dt, i, i_stop, S, p, tol, live, quiet):
 
 
 # ---------------------------------------------------------------------------
+# an ensemble in rounds: every member flies while it is quiet, then those that need the exact loop take it
+
+
+#: steps a member flies in one round (a round ends with the launch that takes the others through the
+#: exact loop: they wait no longer than this); steps a member near contact takes through the exact loop
+#: before it flies again (an approach, its impacts and the departure)
+CHUNK, ALONE = 256, 16
+#: columns of a member's row of integers: step reached, status, next sample
+AT_STEP, AT_STATUS, AT_SAMPLE = 0, 1, 2
+#: what member_fly says of a member: finished (or stopped), flown (quiet to the round's end or its sample),
+#: in want of the exact loop
+FINISHED, FLOWN, NEEDS_CARE = 0, 1, 2
+
+
+def next_stop(state, sample_steps, n_steps):
+    """The step a member runs to next: its next sample step, or the end."""
+    s = state[AT_SAMPLE]
+    return sample_steps[s] if s < sample_steps.shape[0] else n_steps
+
+
+def arrive(model, t, q, qd, p, state, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, out, box):
+    """A member at its next stop: its state recorded (as the exact loop records it) into its sample and final rows."""
+    record(model, t, q, qd, p, 0, out, box)
+    s = state[AT_SAMPLE]
+    if s < sample_steps.shape[0] and sample_steps[s] == state[AT_STEP]:
+        copy_to(samp_q[s], out.q[0])
+        copy_to(samp_qd[s], out.qd[0])
+        state[AT_SAMPLE] = s + 1
+    copy_to(fin_q, out.q[0])
+    copy_to(fin_qd, out.qd[0])
+    fin[0] = out.energy[0]
+
+
+def settle(state, tally, dt, fin):
+    """The member's counts into its final row (as :func:`~.members.follow_member` ends)."""
+    fin[1] = tally[TALLY_IMPULSES]
+    fin[2] = tally[TALLY_FIRST]
+    fin[3] = state[AT_STATUS]
+    fin[4] = state[AT_STEP]
+    fin[5] = fallback_time(tally, state[AT_STEP] * dt)
+    fin[6] = tally[TALLY_WARNINGS]
+
+
+def member_start(model, exact, stages, q, qd, rest, p, tol, tally, state, dt, n_steps, sample_steps, samp_q,
+                 samp_qd, fin_q, fin_qd, fin, log, out):
+    """A member's step 0 (the impulses a touching start gets), as :func:`~.members.follow_member` begins."""
+    clear_modes(rest)
+    clear_tally(tally)
+    i, _, status, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, 0, 0, out, 0, log, tally)
+    state[AT_STEP], state[AT_STATUS], state[AT_SAMPLE] = i, status, 0
+    s = 0
+    if s < sample_steps.shape[0] and sample_steps[s] == 0:
+        copy_to(samp_q[s], out.q[0])
+        copy_to(samp_qd[s], out.qd[0])
+        state[AT_SAMPLE] = 1
+    copy_to(fin_q, out.q[0])
+    copy_to(fin_qd, out.qd[0])
+    fin[0] = out.energy[0]
+    settle(state, tally, dt, fin)
+
+
+def member_fly(model, q, qd, rest, p, tol, tally, state, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin,
+               qb, qdb, out, box):
+    """One round of a member in free flight: the model's ``fly`` from a fresh clearance, as the exact loop
+    starts a call. Returns FINISHED, FLOWN, or NEEDS_CARE (a step that is not quiet, or a held contact)."""
+    i = state[AT_STEP]
+    if state[AT_STATUS] != DONE or i >= n_steps:
+        return FINISHED
+    if not is_free(rest, model.n_contact):
+        return NEEDS_CARE
+    stop = next_stop(state, sample_steps, n_steps)
+    end = min(stop, i + CHUNK)
+    i, _ = model.fly(0.0, dt, i, end, q, qd, p, tol, model.clearance(i * dt, q, p, tol), qb, qdb)
+    state[AT_STEP] = i
+    if i == stop:
+        arrive(model, i * dt, q, qd, p, state, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, out, box)
+        settle(state, tally, dt, fin)
+    return FLOWN if i == end else NEEDS_CARE
+
+
+def member_alone(model, exact, stages, q, qd, rest, p, tol, tally, state, dt, n_steps, sample_steps, samp_q,
+                 samp_qd, fin_q, fin_qd, fin, log, out):
+    """A member through the exact loop: ALONE steps (free) or to the round's end (held, or in the fallback)."""
+    i = state[AT_STEP]
+    stop = next_stop(state, sample_steps, n_steps)
+    end = min(stop, i + (ALONE if is_free(rest, model.n_contact) else CHUNK))
+    i, _, status, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, end, out, 1, log, tally)
+    state[AT_STEP], state[AT_STATUS] = i, status
+    if status == DONE and i == stop:
+        arrive(model, i * dt, q, qd, p, state, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, out, stages.ws.box)
+    settle(state, tally, dt, fin)
+
+
+# ---------------------------------------------------------------------------
 # the kernel file of a model
 
 #: the kernels of a kernel file, and their argument types (as run_members and run_twin_members pass them)
-KERNEL_NAMES = ("members", "twins")
+KERNEL_NAMES = ("members", "alone", "flying", "twins")
 
 #: what follows the model's and the hot path's text in a kernel file: {N_DOF} ... are the model's; the
 #: helpers that make local arrays are inlined by Numba (``inline="always"``), so the arrays are the kernel's
@@ -225,6 +321,7 @@ _gpu.to_device(globals())
 _exact = _gpu.device(_gpu.exact_on)
 _lanes = _gpu.device(_gpu.lanes_none)
 _step, _update, _crossing, _release, _fallback, _hold = _gpu.stage_devices()
+_gpu_start, _gpu_alone, _gpu_fly = (_gpu.device(f) for f in (_gpu.member_start, _gpu.member_alone, _gpu.member_fly))
 _N, _C, _NP, _NT, _NR = {N_DOF}, {N_CONTACT}, {N_PARAM}, {N_TOL}, {N_REST}
 
 
@@ -263,16 +360,64 @@ def _copy(dst, src):
     return dst
 
 
+@_cuda.jit(device=True, inline="always")
+def _rows(Q, QD, P, TOL, j):
+    """Member j's rows in local memory (read at every stage: coalesced there, and cached)."""
+    return (_copy(_cuda.local.array(_N, _f8), Q[j]), _copy(_cuda.local.array(_N, _f8), QD[j]),
+            _copy(_cuda.local.array(_NP, _f8), P[j]), _copy(_cuda.local.array(_NT, _f8), TOL[j]))
+
+
 @_cuda.jit(cache=True)
 def members(Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
+    """Each member from start to end in one thread (ROUNDS False)."""
     j = _cuda.grid(1)
     if j < Q0.shape[0]:
-        # the member's rows in local memory (read at every stage: coalesced there, and cached)
-        q, qd = _copy(_cuda.local.array(_N, _f8), Q0[j]), _copy(_cuda.local.array(_N, _f8), QD0[j])
-        p, tol = _copy(_cuda.local.array(_NP, _f8), P[j]), _copy(_cuda.local.array(_NT, _f8), TOL[j])
+        q, qd, p, tol = _rows(Q0, QD0, P, TOL, j)
         _follow_member(_model(), _exact, _stages(), q, qd, _cuda.local.array(_NR, _i8), p, tol, dt, n_steps,
                        sample_steps, samp_q[j], samp_qd[j], fin_q[j], fin_qd[j], fin[j], _log(), _samples(),
                        _cuda.local.array({TALLY}, _f8))
+
+
+@_cuda.jit(cache=True)
+def alone(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, LIST,
+          n_listed):
+    """Members through the exact loop: every member's start (n_listed < 0), else the n_listed in LIST."""
+    k = _cuda.grid(1)
+    if k >= (Q.shape[0] if n_listed < 0 else n_listed):
+        return
+    j = k if n_listed < 0 else LIST[k]
+    q, qd, p, tol = _rows(Q, QD, P, TOL, j)
+    rest, tally = _copy(_cuda.local.array(_NR, _i8), REST[j]), _copy(_cuda.local.array({TALLY}, _f8), TALLY[j])
+    if n_listed < 0:
+        _gpu_start(_model(), _exact, _stages(), q, qd, rest, p, tol, tally, STATE[j], dt, n_steps, sample_steps,
+                   samp_q[j], samp_qd[j], fin_q[j], fin_qd[j], fin[j], _log(), _samples())
+    else:
+        _gpu_alone(_model(), _exact, _stages(), q, qd, rest, p, tol, tally, STATE[j], dt, n_steps, sample_steps,
+                   samp_q[j], samp_qd[j], fin_q[j], fin_qd[j], fin[j], _log(), _samples())
+    _copy(Q[j], q)
+    _copy(QD[j], qd)
+    _copy(REST[j], rest)
+    _copy(TALLY[j], tally)
+
+
+@_cuda.jit(cache=True)
+def flying(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, LIST,
+        COUNT):
+    """A round of free flight for every member; those that need the exact loop are listed (LIST, COUNT[0]),
+    those still running counted (COUNT[1])."""
+    j = _cuda.grid(1)
+    if j >= Q.shape[0]:
+        return
+    q, qd, p, tol = _rows(Q, QD, P, TOL, j)
+    how = _gpu_fly(_model(), q, qd, REST[j], p, tol, TALLY[j], STATE[j], dt, n_steps, sample_steps, samp_q[j], samp_qd[j],
+                   fin_q[j], fin_qd[j], fin[j], _cuda.local.array(_N, _f8), _cuda.local.array(_N, _f8), _samples(),
+                   _cuda.local.array(6, _f8))
+    if how != {FINISHED}:
+        _copy(Q[j], q)
+        _copy(QD[j], qd)
+        _cuda.atomic.add(COUNT, 1, 1)
+        if how == {NEEDS_CARE}:
+            LIST[_cuda.atomic.add(COUNT, 0, 1)] = j
 
 
 @_cuda.jit(cache=True)
@@ -304,7 +449,7 @@ def kernel_text(model_text: str, flight_text: str, constants: dict) -> str:
     functions = ", ".join(name for name in SIGNATURES if name != "lanes")
     filled = KERNELS
     for key, value in {**constants, "FUNCTIONS": functions, "SC": SC, "SN": SN, "SK": SK, "MODE_SLOTS": MODE_SLOTS,
-                       "LOG_SIZE": LOG_SIZE, "TALLY": TALLY}.items():
+                       "LOG_SIZE": LOG_SIZE, "TALLY": TALLY, "FINISHED": FINISHED, "NEEDS_CARE": NEEDS_CARE}.items():
         filled = filled.replace("{" + key + "}", str(value))
     return _with_stubs(model_text) + "\n\n" + flight_text + filled
 
@@ -353,33 +498,45 @@ def _signatures():
     from numba.core import types
     f8, i8 = types.float64, types.int64
     V1, V2, V3 = (types.Array(f8, d, "C") for d in (1, 2, 3))
-    return {"members": (V2, V2, V2, V2, f8, i8, types.Array(i8, 1, "C"), V3, V3, V2, V2, V2),
-            "twins": (V2, V2, V2, V2, V2, V2, f8, i8, i8, V1, V2, V2)}
+    I1, I2 = types.Array(i8, 1, "C"), types.Array(i8, 2, "C")
+    rounds = (V2, V2, V2, V2, I2, V2, I2, f8, i8, I1, V3, V3, V2, V2, V2, I1)
+    return {"members": (V2, V2, V2, V2, f8, i8, I1, V3, V3, V2, V2, V2), "alone": rounds + (i8,), "flying": rounds + (I1,), "twins": (V2, V2, V2, V2, V2, V2, f8, i8, i8, V1, V2, V2)}
 
 
-#: the kernel a study of each kind runs
-KIND_KERNEL = {"ensemble": "members", "chaos": "twins"}
+#: how an ensemble runs: False, each member from start to end in one thread (kernel ``members``); True,
+#: in rounds (kernels ``flying`` and ``alone``, :func:`run_rounds`), so that members near contact do not
+#: hold up the others of their warp. Measured on an H100 (benchmarks/results/gpu.md) only without rounds
+#: so far: divergence cost shaken 9x there; the rounds give the same numbers (tests/test_gpu.py) and wait
+#: for a session with a GPU to be measured (jackbox bench --device cuda measures both)
+ROUNDS = False
 
 
-def is_cached(kernels, kind: str) -> bool:
+def kind_kernels(kind: str, rounds: bool | None = None) -> tuple[str, ...]:
+    """The kernels a study of this kind runs."""
+    if kind == "chaos":
+        return ("twins",)
+    return ("alone", "flying") if (ROUNDS if rounds is None else rounds) else ("members",)
+
+
+def is_cached(kernels, kind: str, rounds: bool | None = None) -> bool:
     """Whether the kernel of a study of this kind is compiled here or in numba-cuda's cache beside its file."""
-    name = KIND_KERNEL[kind]
-    if _simulated() or getattr(kernels, name).overloads:
+    if _simulated():
         return True
     path = Path(kernels.__file__)
-    return any(path.parent.glob(f"__pycache__/{path.stem}.{name}-*.nbi"))
+    return all(getattr(kernels, name).overloads or any(path.parent.glob(f"__pycache__/{path.stem}.{name}-*.nbi"))
+               for name in kind_kernels(kind, rounds))
 
 
-def prepare(kernels, kind: str) -> str:
+def prepare(kernels, kind: str, rounds: bool | None = None) -> str:
     """Compile (or load from the cache) the kernel of a study of this kind: "memory", "hit" or "miss"."""
-    name = KIND_KERNEL[kind]
-    kernel = getattr(kernels, name)
     if _simulated():
         return "simulator"
-    if kernel.overloads:
+    names = kind_kernels(kind, rounds)
+    if all(getattr(kernels, name).overloads for name in names):
         return "memory"
-    hit = is_cached(kernels, kind)
-    kernel.compile(_signatures()[name])
+    hit = is_cached(kernels, kind, rounds)
+    for name in names:
+        getattr(kernels, name).compile(_signatures()[name])
     return "hit" if hit else "miss"
 
 
@@ -391,10 +548,59 @@ def device_name() -> str:
     return name.decode() if isinstance(name, bytes) else str(name)
 
 
-def run_members(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin) -> None:
-    """:func:`jackbox.engine.members.run_members` on the GPU: the outputs' rows filled, one thread a member."""
-    _launch(kernels.members, Q0.shape[0], (Q0, QD0, P, TOL), (float(dt), int(n_steps)), (sample_steps,),
-            (samp_q, samp_qd, fin_q, fin_qd, fin))
+def run_members(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin,
+                rounds: bool | None = None) -> None:
+    """:func:`jackbox.engine.members.run_members` on the GPU: the outputs' rows filled, one thread a member.
+
+    rounds: in rounds (:func:`run_rounds`) or each member in one go (None: :data:`ROUNDS`).
+    """
+    if ROUNDS if rounds is None else rounds:
+        run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin)
+    else:
+        _launch(kernels.members, Q0.shape[0], (Q0, QD0, P, TOL), (float(dt), int(n_steps)), (sample_steps,),
+                (samp_q, samp_qd, fin_q, fin_qd, fin))
+
+
+def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin) -> None:
+    """:func:`run_members` in rounds.
+
+    In rounds, so that a member near contact does not hold up the 31 others
+    of its warp: every member flies while it is quiet (kernel ``fly``, at most
+    CHUNK steps), then the members that need the exact loop take it, listed
+    and packed into warps of their own (kernel ``alone``, ALONE steps, or to
+    the round's end for a held contact). A member's numbers are those of one
+    call of the exact loop from its start (:func:`member_fly` starts ``fly``
+    as the exact loop starts a call); the rounds end when every member has.
+    """
+    n = Q0.shape[0]
+    if n == 0:
+        return
+    cuda = _cuda()
+    stream = cuda.stream()
+    dev = [cuda.to_device(np.ascontiguousarray(a), stream=stream) for a in (Q0, QD0, P, TOL)]
+    REST = cuda.to_device(np.zeros((n, kernels._NR), np.int64), stream=stream)
+    TALLY_ = cuda.to_device(np.zeros((n, TALLY)), stream=stream)
+    STATE = cuda.to_device(np.zeros((n, 3), np.int64), stream=stream)
+    steps = cuda.to_device(np.ascontiguousarray(sample_steps, np.int64), stream=stream)
+    outs = [cuda.to_device(a, stream=stream) for a in (samp_q, samp_qd, fin_q, fin_qd, fin)]
+    LIST = cuda.to_device(np.zeros(n, np.int64), stream=stream)
+    count = np.zeros(2, np.int64)
+    COUNT = cuda.to_device(count, stream=stream)
+    args = (*dev, REST, TALLY_, STATE, float(dt), int(n_steps), steps, *outs, LIST)
+    grid = (n + BLOCK - 1) // BLOCK
+    kernels.alone[grid, BLOCK, stream](*args, -1)
+    while True:
+        COUNT.copy_to_device(np.zeros(2, np.int64), stream=stream)
+        kernels.flying[grid, BLOCK, stream](*args, COUNT)
+        COUNT.copy_to_host(count, stream=stream)
+        stream.synchronize()
+        if count[1] == 0:
+            break
+        if count[0] > 0:
+            kernels.alone[(int(count[0]) + BLOCK - 1) // BLOCK, BLOCK, stream](*args, int(count[0]))
+    for host, out in zip((samp_q, samp_qd, fin_q, fin_qd, fin), outs):
+        out.copy_to_host(host, stream=stream)
+    stream.synchronize()
 
 
 def run_twin_members(kernels, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin) -> None:
