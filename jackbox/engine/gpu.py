@@ -41,18 +41,14 @@ import numpy as np
 
 from . import cache
 from .loop import exact_steps, record
-from .members import (LOG_SIZE, TALLY, TALLY_FIRST, TALLY_IMPULSES, TALLY_WARNINGS, clear_modes, clear_tally,
-                      copy_to, fallback_time, grown, is_free, run_segment)
+from .members import (LOG_SIZE, TALLY, TALLY_FIRST, TALLY_IMPULSES, TALLY_WARNINGS, copy_to, fallback_time, grown,
+                      is_free, run_segment, start_member)
 from .records import DONE, MODE_SLOTS, SC, SK, SN, SIGNATURES, Stages, borrow, keep
 
 #: members per thread block
 BLOCK = 64
 #: the stages of the exact loop in a kernel's Stages record, with the scratch the loop steps in
 GpuStages = namedtuple("GpuStages", Stages._fields + ("ws",))
-
-
-class GpuUnavailable(RuntimeError):
-    """No GPU can run a study here: numba-cuda is missing, or no CUDA device (the message says which)."""
 
 
 def unavailable() -> str | None:
@@ -252,19 +248,10 @@ def settle(state, tally, dt, fin):
 
 def member_start(model, exact, stages, q, qd, rest, p, tol, tally, state, dt, n_steps, sample_steps, samp_q,
                  samp_qd, fin_q, fin_qd, fin, log, out):
-    """A member's step 0 (the impulses a touching start gets), as :func:`~.members.follow_member` begins."""
-    clear_modes(rest)
-    clear_tally(tally)
-    i, _, status, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, 0, 0, out, 0, log, tally)
-    state[AT_STEP], state[AT_STATUS], state[AT_SAMPLE] = i, status, 0
-    s = 0
-    if s < sample_steps.shape[0] and sample_steps[s] == 0:
-        copy_to(samp_q[s], out.q[0])
-        copy_to(samp_qd[s], out.qd[0])
-        state[AT_SAMPLE] = 1
-    copy_to(fin_q, out.q[0])
-    copy_to(fin_qd, out.qd[0])
-    fin[0] = out.energy[0]
+    """A member's step 0 (:func:`~.members.start_member`), its state row set."""
+    i, status, s, log = start_member(model, exact, stages, q, qd, rest, p, tol, dt, sample_steps, samp_q, samp_qd,
+                                     fin_q, fin_qd, fin, log, out, tally)
+    state[AT_STEP], state[AT_STATUS], state[AT_SAMPLE] = i, status, s
     settle(state, tally, dt, fin)
 
 

@@ -142,14 +142,13 @@ def run_member(model, exact, stages, q0, qd0, p, tol, dt, n_steps, sample_steps,
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def follow_member(model, exact, stages, q, qd, rest, p, tol, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd,
-                  fin, log, out, tally):
-    """:func:`run_member` in the arrays it is given: the state q, qd (the start, moved on), the modes, an event
-    log, two samples and a tally (the GPU's kernel hands in arrays of its own, of fixed size)."""
+def start_member(model, exact, stages, q, qd, rest, p, tol, dt, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, log,
+                 out, tally):
+    """Step 0 of a member: the start, after any impulse a touching start state gets; its sample at step 0 and
+    its final row so far. Returns ``(step reached, status, next sample, log)``."""
     clear_modes(rest)
     clear_tally(tally)
-    # step 0: the start, after any impulse a touching start state gets
-    i, n_rec, status, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, 0, 0, out, 0, log, tally)
+    i, _, status, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, 0, 0, out, 0, log, tally)
     s = 0
     if s < sample_steps.shape[0] and sample_steps[s] == 0:
         copy_to(samp_q[s], out.q[0])
@@ -158,6 +157,16 @@ def follow_member(model, exact, stages, q, qd, rest, p, tol, dt, n_steps, sample
     copy_to(fin_q, out.q[0])
     copy_to(fin_qd, out.qd[0])
     fin[0] = out.energy[0]
+    return i, status, s, log
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def follow_member(model, exact, stages, q, qd, rest, p, tol, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd,
+                  fin, log, out, tally):
+    """:func:`run_member` in the arrays it is given: the state q, qd (the start, moved on), the modes, an event
+    log, two samples and a tally (the GPU's kernel hands in arrays of its own, of fixed size)."""
+    i, status, s, log = start_member(model, exact, stages, q, qd, rest, p, tol, dt, sample_steps, samp_q, samp_qd,
+                                     fin_q, fin_qd, fin, log, out, tally)
     while status == DONE and i < n_steps:
         stop = sample_steps[s] if s < sample_steps.shape[0] else n_steps
         i, n_rec, status, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, stop, out, 1, log, tally)
