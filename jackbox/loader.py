@@ -483,7 +483,7 @@ class Kernel:
     def gpu(self):
         """This model's GPU kernels (:mod:`jackbox.engine.gpu`; the file written, the kernels compiled on first use)."""
         from .engine import gpu
-        return gpu.load_kernels(Path(self.__file__), self.module)
+        return gpu.load_kernels(_with_stubs(Path(self.__file__).read_text()), FLIGHT_SOURCE.read_text(), self.module)
 
     def run_members(self, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin,
                     lanes: bool = False, device: str = "cpu"):

@@ -165,7 +165,7 @@ def to_device(namespace: dict) -> None:
     """
     cuda = _cuda()
     for name, value in list(namespace.items()):
-        if name.startswith("__") or name in KERNEL_NAMES:
+        if name.startswith("__"):
             continue
         if _is_engine_function(value):
             namespace[name] = device(value)
@@ -289,9 +289,6 @@ def member_alone(model, exact, stages, q, qd, rest, p, tol, tally, state, dt, n_
 
 # ---------------------------------------------------------------------------
 # the kernel file of a model
-
-#: the kernels of a kernel file, and their argument types (as run_members and run_twin_members pass them)
-KERNEL_NAMES = ("members", "alone", "flying", "twins")
 
 #: what follows the model's and the hot path's text in a kernel file: {N_DOF} ... are the model's; the
 #: helpers that make local arrays are inlined by Numba (``inline="always"``), so the arrays are the kernel's
@@ -431,14 +428,14 @@ def stage_devices():
 
 
 def kernel_text(model_text: str, flight_text: str, constants: dict) -> str:
-    """The text of a model's kernel file (see :data:`KERNELS`)."""
-    from ..loader import _with_stubs
+    """The text of a model's kernel file (see :data:`KERNELS`): the model's text (with the loader's stubs for
+    what it lacks), the hot path's, the kernels."""
     functions = ", ".join(name for name in SIGNATURES if name != "lanes")
     filled = KERNELS
     for key, value in {**constants, "FUNCTIONS": functions, "SC": SC, "SN": SN, "SK": SK, "MODE_SLOTS": MODE_SLOTS,
                        "LOG_SIZE": LOG_SIZE, "TALLY": TALLY, "FINISHED": FINISHED, "NEEDS_CARE": NEEDS_CARE}.items():
         filled = filled.replace("{" + key + "}", str(value))
-    return _with_stubs(model_text) + "\n\n" + flight_text + filled
+    return model_text + "\n\n" + flight_text + filled
 
 
 def kernel_constants(module) -> dict:
@@ -460,12 +457,13 @@ def kernel_path(text: str) -> Path:
 _kernels: dict = {}
 
 
-def load_kernels(model_file: Path, module, flight_text: str | None = None):
-    """The kernel module of a model (written to the cache on first use; compiled by numba-cuda on first launch)."""
+def load_kernels(model_text: str, flight_text: str, module):
+    """The kernel module of a model (written to the cache on first use; compiled by numba-cuda on first launch).
+
+    model_text: the generated model's text with the loader's stubs; module: the model as a module (its sizes).
+    """
     from ..fileio import write_atomic
-    from ..loader import FLIGHT_SOURCE
-    flight_text = FLIGHT_SOURCE.read_text() if flight_text is None else flight_text
-    text = kernel_text(Path(model_file).read_text(), flight_text, kernel_constants(module))
+    text = kernel_text(model_text, flight_text, kernel_constants(module))
     path = kernel_path(text)
     if path in _kernels:
         return _kernels[path]
