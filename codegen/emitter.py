@@ -202,18 +202,19 @@ def emit_module(model: Model, command: str) -> str:
         f"E_GROUND_SLOT = {[s.name for s in model.p].index('e_ground')}",
         f"FUNCTIONS = {tuple(fn.name for fn in fs) + ('accel_time_s',) + TUPLE_HELPERS!r}",
     ]
-    bodies += _tuple_helpers(len(model.q))
+    bodies += _tuple_helpers(len(model.q), len(model.p))
     return seal("\n".join(header) + "\n" + "".join("\n\n" + body for body in bodies))
 
 
-#: Tuple arithmetic of length N_DOF emitted with every model (no sympy involved).
-TUPLE_HELPERS = ("tuple_of", "axpy_s", "wsum_s")
+#: Tuple arithmetic of length N_DOF emitted with every model (no sympy involved), and the
+#: parameters as a tuple
+TUPLE_HELPERS = ("tuple_of", "axpy_s", "wsum_s", "params_of")
 
 
-def _tuple_helpers(n: int) -> list[str]:
+def _tuple_helpers(n: int, n_param: int) -> list[str]:
     """Unrolled n-tuple helpers for the free-flight hot path's RK4 on floats (its tableau is the runtime's)."""
-    def tup(item) -> str:
-        return "(" + ", ".join(item(i) for i in range(n)) + ("," if n == 1 else "") + ")"
+    def tup(item, size=n) -> str:
+        return "(" + ", ".join(item(i) for i in range(size)) + ("," if size == 1 else "") + ")"
 
     return [
         "def tuple_of(a):\n"
@@ -225,6 +226,9 @@ def _tuple_helpers(n: int) -> list[str]:
         "def wsum_s(y, h, w, k1, k2, k3, k4):\n"
         '    """y + h (w[0] k1 + w[1] k2 + w[2] k3 + w[3] k4) for N_DOF-tuples (a 4-stage update)."""\n'
         f"    return {tup(lambda i: f'y[{i}] + h * (w[0] * k1[{i}] + w[1] * k2[{i}] + w[2] * k3[{i}] + w[3] * k4[{i}])')}\n",
+        "def params_of(p):\n"
+        '    """The N_PARAM parameters as a tuple (read once, then held in registers: an ensemble block\'s lanes)."""\n'
+        f"    return {tup(lambda i: f'p[{i}]', n_param)}\n",
     ]
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 
 import numpy as np
 import pytest
@@ -124,6 +125,28 @@ def test_lanes_sine_and_cosine_are_the_library_s_to_an_ulp():
         s, c = sincos(x)
         worst = max(worst, abs(s - math.sin(x)), abs(c - math.cos(x)))
     assert worst <= 2.0 * np.finfo(float).eps, worst
+
+
+def test_the_lanes_step_is_compiled_to_vector_instructions():
+    """LLVM's loop vectoriser packs the lanes of the step itself, not only the bookkeeping.
+
+    The step's loop is the only one with a speed bound (``abs``) and the every-gap loop the
+    only one with a sine's quadrant (``floor``): both must be vector operations. Either
+    falls back to scalar code when a loop over the lanes keeps a call or a branch, when
+    the parameters are read from their array inside it, or when LLVM's SLP vectoriser
+    packs pairs of one lane's operations first (all seen: 11.5 against 7 ns a lane-step).
+    """
+    import numba
+
+    text = loader.binding_parts(loader.GENERATED_DIR.joinpath("shaken.py").read_text(), lanes=True)["lanes"]
+    text = text.replace("cache=True", "cache=False").split("COMPILED = ")[0]
+    space: dict = {}
+    exec(compile(text, "lanes_part", "exec"), space)
+    ir = numba.cfunc(engine.SIGNATURES["lanes"])(space["lanes"]).inspect_llvm()
+    # the loop vectoriser's loops (the SLP vectoriser's pairs are not in blocks of this name)
+    bodies = "".join(block for block in re.split(r"\n(?=[\w.]+:)", ir) if block.startswith("vector.body"))
+    for op in ("fabs", "floor"):
+        assert re.search(rf"@llvm\.{op}\.v\d+f64", bodies), f"the lanes' {op} is not in a vectorised loop"
 
 
 def test_a_model_compiles_its_lanes_only_when_a_study_needs_them():

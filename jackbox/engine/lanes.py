@@ -7,32 +7,37 @@ hot path's ``rk4_stages``, the model's tuple functions and its
 study first needs it.
 
 A block's state is one array of rows of LANES floats (the members of the
-block side by side, :data:`jackbox.engine.records.BLOCK_ROWS` rows): the main
-loop over the lanes has a fixed trip count, no call and no branch, so LLVM
-(its SLP vectoriser, which :func:`jackbox.engine.bind_part` turns on for this
-part) can pack lanes into vector instructions; it packs only part of the loop
-so far (README, "Ensembles in lanes"). The terms of time (a shaking force's
-sine) are the block's: its members share their parameters, so each is
-computed once per stage time for all of them. Each lane's step is the hot path's RK4 step
+block side by side, :data:`jackbox.engine.records.BLOCK_ROWS` rows). Each
+loop over the lanes is written for LLVM's loop vectoriser: no call, no
+branch, the parameters and tolerances read into registers before it
+(``params_of``), and a trip count read at run time (a constant one of 16 is
+unrolled whole before the vectoriser sees it), so a loop becomes vector
+instructions of eight lanes. The terms of time (a shaking force's sine) are
+the block's: its members share their parameters, so each is computed once
+per stage time for all of them. Each lane's step is the hot path's RK4 step
 (``rk4_stages``, the same operations in the same order), so a member stepped
 here has the bits it would have had alone.
 
 A step is taken for the block only if it is quiet for every live lane: every
 gap, at both ends, further from contact than the step can move it, by the
-margin the exact loop asks (``step_reach``) plus T_GAP. The gaps come from the
-model's ``clearance_v`` with the sines and cosines of :func:`sincos` (a
-polynomial that LLVM can vectorise, within 2 eps of the library's): the extra
-T_GAP, a thousand times what that difference can move a gap, keeps a lane's
-"quiet" from ever being the exact loop's "not quiet". Otherwise the lanes stop
-before that step and say which are quiet (:mod:`jackbox.engine.members` takes
-the others through the exact loop, alone).
+margin the exact loop asks (``step_reach``) plus T_GAP. As in the hot path's
+``fly``, a lane's bound on its gaps is lowered by each step's band, and all
+of them are computed again (every gap: the model's ``clearance_v`` with the
+sines and cosines of :func:`sincos`, a polynomial that LLVM can vectorise,
+within 2 eps of the library's) only in a step where some live lane's bound
+runs low: the extra T_GAP, a thousand times what that difference can move a
+gap, keeps a lane's "quiet" from ever being the exact loop's "not quiet".
+Otherwise the lanes stop before that step and say which are quiet
+(:mod:`jackbox.engine.members` takes the others through the exact loop,
+alone).
 """
 
 import math
 
 from jackbox.engine.gaps import speed_bound as _speed_bound
 from jackbox.engine.integrator import NODES as _NODES
-from jackbox.engine.records import BOUND_ROW as _BOUND, LANES as _W, T_EVENT as _T_EVENT_L, T_GAP as _T_GAP_L
+from jackbox.engine.records import (BOUND_ROW as _BOUND, LANES as _W, SPEED_ROW as _SPEED, T_EVENT as _T_EVENT_L,
+                                    T_GAP as _T_GAP_L)
 
 # sin and cos: Cody-Waite reduction by pi/2 (its first part has 33 bits, so k * _PIO2_HI is exact for
 # |k| < 2^20, angles up to 1.6e6 rad) and the classical minimax polynomials on [-pi/4, pi/4]
@@ -60,7 +65,7 @@ def sincos(x):
 
 
 def lane_bound(t, q, p):
-    """A bound on every gap of a lane at (t, q), within a few eps of the exact loop's."""
+    """A bound on every gap of a lane at (t, q), within a few eps of the exact loop's (p: ``params_of``)."""
     sb, cb = sincos(q[2])
     sj, cj = sincos(q[5])
     return clearance_v(t, q, p, (sb, cb, sj, cj))
@@ -72,29 +77,36 @@ def lane_state(S, at, lane):
             S[at + 5 * _W + lane])
 
 
+def tolerances_of(tol):
+    """The tolerance slots a lane reads, up to the six coordinates' lever arms, as a tuple (held in registers)."""
+    return (tol[0], tol[1], tol[2], tol[3], tol[4], tol[5], tol[6], tol[7], tol[8], tol[9], tol[10], tol[11],
+            tol[12], tol[13])
+
+
 def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):
     """Steps i, i+1, ... of the block's live lanes together while each step is quiet for every live lane.
 
     S: the block's state (rows q, qd, trial q, trial qd, then per lane a bound
     on every gap at the start, NaN where the caller has moved the lane and it
-    is to be computed again, the same at the trial's end, and the trial
-    step's band). Returns the step reached: i_stop, or the step before which
-    some live lane is not quiet; then the trial of that step is in S for
-    every lane and quiet[lane] says whether that lane may take it. A lane that
-    is not live is stepped too (its numbers are not used). Free boxes only: six
+    is to be computed again, the same at the trial's end, the trial step's
+    band, and the bounds on the gaps' speed at the start and the trial's
+    end). Returns the step reached: i_stop, or the step before which some
+    live lane is not quiet; then the trial of that step is in S for every
+    lane and quiet[lane] says whether that lane may take it. A lane that is
+    not live is stepped too (its numbers are not used). Free boxes only: six
     coordinates, box first.
-
-    As in the hot path's ``fly``, a lane's bound is lowered by each step's
-    band and computed again (every gap: :func:`lane_bound`) only when that
-    leaves too little, in a second loop over the few lanes that need it; the
-    first loop, over every lane, has no call and no branch.
     """
-    QV, QB, QVB, GA, GB, BAND = 6 * _W, 12 * _W, 18 * _W, _BOUND * _W, (_BOUND + 1) * _W, (_BOUND + 2) * _W
-    margin = 2.0 * tol[_T_GAP_L] - 0.5 * tol[_T_EVENT_L]
+    QV, QB, QVB = 6 * _W, 12 * _W, 18 * _W
+    GA, GB, BAND, SA, SB = _BOUND * _W, (_BOUND + 1) * _W, (_BOUND + 2) * _W, _SPEED * _W, (_SPEED + 1) * _W
+    n = live.shape[0]       # (LANES, read at run time: see the module's docstring)
+    pt = params_of(p)
+    tl = tolerances_of(tol)
+    margin = 2.0 * tl[_T_GAP_L] - 0.5 * tl[_T_EVENT_L]
     t = t0 + i * dt
-    for lane in range(_W):
+    for lane in range(n):
         if S[GA + lane] != S[GA + lane]:        # NaN: a lane whose state the caller changed
-            S[GA + lane] = lane_bound(t, lane_state(S, 0, lane), p)
+            S[GA + lane] = lane_bound(t, lane_state(S, 0, lane), pt)
+            S[SA + lane] = _speed_bound(lane_state(S, QV, lane), tl)
     tt = accel_time_s(t, p)
     while i < i_stop:
         t = t0 + i * dt
@@ -102,45 +114,45 @@ def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):
         t_next = t0 + (i + 1) * dt
         ttm = accel_time_s(tm, p)
         tt_next = accel_time_s(t_next, p)
-        short = 0
-        for lane in range(_W):
-            qd = lane_state(S, QV, lane)
-            qn, vn = rk4_stages(lane_state(S, 0, lane), qd, dt, p, t, tt, tm, ttm, t_next, tt_next)
+        low = 0
+        for lane in range(n):
+            qn, vn = rk4_stages(lane_state(S, 0, lane), lane_state(S, QV, lane), dt, pt, t, tt, tm, ttm, t_next,
+                                tt_next)
             S[QB + lane], S[QB + _W + lane], S[QB + 2 * _W + lane] = qn[0], qn[1], qn[2]
             S[QB + 3 * _W + lane], S[QB + 4 * _W + lane], S[QB + 5 * _W + lane] = qn[3], qn[4], qn[5]
             S[QVB + lane], S[QVB + _W + lane], S[QVB + 2 * _W + lane] = vn[0], vn[1], vn[2]
             S[QVB + 3 * _W + lane], S[QVB + 4 * _W + lane], S[QVB + 5 * _W + lane] = vn[3], vn[4], vn[5]
-            band = dt * max(_speed_bound(qd, tol), _speed_bound(vn, tol)) + margin     # as in fly
-            total = qn[0] + qn[1] + qn[2] + qn[3] + qn[4] + qn[5] + vn[0] + vn[1] + vn[2] + vn[3] + vn[4] + vn[5]
+            sb = _speed_bound(vn, tl)
+            band = dt * max(S[SA + lane], sb) + margin       # as in fly
             c = S[GA + lane] - band
-            S[GB + lane] = c
+            S[SB + lane] = sb
             S[BAND + lane] = band
-            # quiet at the start (and finite: min and max hide a NaN) and, by the lowered bound, at the end
-            start = (S[GA + lane] >= band) & (total - total == 0.0)
-            ok = start & (c >= band)
-            quiet[lane] = ok
-            short += start & (1 - ok)
-        if short:          # the bound at the end of some lanes is too low: every gap there, for those
-            for lane in range(_W):
-                if quiet[lane] == 0 and S[GA + lane] >= S[BAND + lane]:
-                    g = lane_bound(t_next, lane_state(S, QB, lane), p)
-                    S[GB + lane] = g
-                    quiet[lane] = g >= S[BAND + lane]
+            S[GB + lane] = c
+            low += live[lane] & (S[GA + lane] >= band) & (c < band)
+        if low:        # some live lane's lowered bound runs low: every gap of every lane at the trial's end
+            for lane in range(n):
+                S[GB + lane] = lane_bound(t_next, lane_state(S, QB, lane), pt)
         stop = 0
-        for lane in range(_W):
-            stop += live[lane] & (1 - quiet[lane])
+        for lane in range(n):
+            qn, vn = lane_state(S, QB, lane), lane_state(S, QVB, lane)
+            total = qn[0] + qn[1] + qn[2] + qn[3] + qn[4] + qn[5] + vn[0] + vn[1] + vn[2] + vn[3] + vn[4] + vn[5]
+            band = S[BAND + lane]
+            # quiet at both ends, and finite (min and max hide a NaN)
+            ok = (S[GA + lane] >= band) & (S[GB + lane] >= band) & (total - total == 0.0)
+            quiet[lane] = ok
+            stop += live[lane] & (1 - ok)
         if stop:
             return i
-        for k in range(6 * _W):
-            S[k] = S[QB + k]
-            S[QV + k] = S[QVB + k]
-        for lane in range(_W):
+        for lane in range(n):
+            for r in range(12):
+                S[r * _W + lane] = S[QB + r * _W + lane]
             S[GA + lane] = S[GB + lane]
+            S[SA + lane] = S[SB + lane]
         tt = tt_next
         i += 1
     return i
 
 
 #: the helpers a lanes part inlines at Numba's level (``inline="always"``): a loop over the lanes
-#: with a call left in it is not vectorised (``lane_bound`` is called from scalar loops only)
-INLINED = ("sincos", "lane_state", "clearance_v")
+#: with a call left in it is not vectorised
+INLINED = ("sincos", "lane_state", "clearance_v", "lane_bound", "params_of", "tolerances_of")

@@ -22,8 +22,8 @@ from numba import njit, prange
 
 from .draws import START, TWIN, draw_normal, draw_uniform
 from .records import (DONE, EXACT_AT, FALLBACK, IMPACT_LOG_FULL, IMPULSE, LANES, MODE_AT, MODE_SLOTS, MODEL_AT,
-                      STAGES_AT, T_BOXV, WARNING, BLOCK_ROWS, BOUND_ROW, Events, ExactType, ModelType, Samples, StagesType,
-                      from_table)
+                      STAGES_AT, T_BOXV, WARNING, BLOCK_ROWS, BOUND_ROW, SPEED_ROW, Events, ExactType, ModelType, Samples,
+                      StagesType, from_table)
 from .tolerances import set_tolerances
 
 #: tally slots of one member: impulses so far, time of the first one (NaN if none), when the
@@ -434,6 +434,7 @@ def run_block(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, 
                         for d in range(2 * n):
                             S[d * W + lane] = S[(2 * n + d) * W + lane]
                         S[BOUND_ROW * W + lane] = S[(BOUND_ROW + 1) * W + lane]
+                        S[SPEED_ROW * W + lane] = S[(SPEED_ROW + 1) * W + lane]
                         continue
                     # near contact: alone through the exact loop for a stretch, then back
                     take_lane(S, lane, held_q[lane], held_qd[lane])
