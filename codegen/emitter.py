@@ -50,7 +50,7 @@ class Function:
 
 #: Functions the fused loop's free-flight path also needs in tuple form
 #: (``accel_s`` ...): floats in registers, no arrays between the RK4 stages.
-TUPLE_TWINS = ("accel", "phi", "box_motion")
+TUPLE_TWINS = ("accel", "phi", "gap_rate", "box_motion")
 
 
 def functions(model: Model) -> list[Function]:

@@ -264,7 +264,7 @@ def part_entries() -> dict[str, tuple[str, ...]]:
 #: the helpers of the hot path a part compiles as njit functions (callees inlined by LLVM, or
 #: by Numba where marked), with their options
 _JITTED = {**{name: "" for name in ("tuple_of", "accel_s", "accel_time_s", "phi_s", "box_motion_s", "axpy_s",
-                                     "wsum_s")},
+                                     "wsum_s", "gap_rate_s", "calm")},
            **{name: ', inline="always"' for name in INLINED + LANES_INLINED}}
 
 

@@ -34,10 +34,11 @@ alone).
 
 import math
 
-from jackbox.engine.gaps import speed_bound as _speed_bound
+from jackbox.engine.gaps import (cubic_error as _cubic_error, hermite as _hermite, hermite_extrema as _hermite_extrema,
+                                 speed_bound as _speed_bound, step_reach as _step_reach)
 from jackbox.engine.integrator import NODES as _NODES
-from jackbox.engine.records import (BOUND_ROW as _BOUND, LANES as _W, SPEED_ROW as _SPEED, T_EVENT as _T_EVENT_L,
-                                    T_GAP as _T_GAP_L)
+from jackbox.engine.records import (BOUND_ROW as _BOUND, LANES as _W, SCRATCH_ROW as _SCRATCH, SPEED_ROW as _SPEED,
+                                    T_EVENT as _T_EVENT_L, T_GAP as _T_GAP_L, T_VREST as _T_VREST_L)
 
 # sin and cos: Cody-Waite reduction by pi/2 (its first part has 33 bits, so k * _PIO2_HI is exact for
 # |k| < 2^20, angles up to 1.6e6 rad) and the classical minimax polynomials on [-pi/4, pi/4]
@@ -81,6 +82,57 @@ def tolerances_of(tol):
     """The tolerance slots a lane reads, up to the six coordinates' lever arms, as a tuple (held in registers)."""
     return (tol[0], tol[1], tol[2], tol[3], tol[4], tol[5], tol[6], tol[7], tol[8], tol[9], tol[10], tol[11],
             tol[12], tol[13])
+
+
+def calm(t, t_next, q, qd, qn, vn, p, tol, ext):
+    """Whether the exact loop finds no event in a step that is not quiet by the bounds; and the smallest gap at its end.
+
+    The step from (t, q, qd) to its trial (t_next, qn, vn) of a free member
+    (no contact held). The exact loop looks for a crossing in it
+    (``events.first_crossing``) and, finding none, takes the trial: the bits a
+    lane's plain step gives. This asks the same questions of the same numbers,
+    computed by the same functions (the model's ``phi_s`` and ``gap_rate_s``
+    have the terms of ``phi`` and ``gap_rate``, operation for operation): no
+    gap near enough to look at, or for each that is, no crossing at the step's
+    end and no dip of its cubic that the exact loop would step to. Where the
+    exact loop would step into the step (to a dip, to locate a crossing),
+    this says no: the member goes through the exact loop. Returns ``(calm,
+    smallest gap at t_next)``.
+    """
+    total = qn[0] + qn[1] + qn[2] + qn[3] + qn[4] + qn[5] + vn[0] + vn[1] + vn[2] + vn[3] + vn[4] + vn[5]
+    if not total - total == 0.0:
+        return False, 0.0
+    h = t_next - t
+    half = 0.5 * tol[_T_EVENT_L]
+    deep = half + tol[_T_EVENT_L]
+    ga = phi_s(t, q, p)
+    gb = phi_s(t_next, qn, p)
+    band = _step_reach(qd, vn, h, tol)
+    smallest = gb[0]
+    near = False
+    for k in range(N_CONTACT):
+        smallest = min(smallest, gb[k])
+        if min(ga[k], gb[k]) + deep < band:
+            near = True
+    if not near:
+        return True, smallest
+    va = gap_rate_s(t, q, qd, p)
+    vb = gap_rate_s(t_next, qn, vn, p)
+    tiny = 1e-3 * tol[_T_VREST_L]
+    dip = _cubic_error(qd, vn, h, tol)
+    for k in range(N_CONTACT):
+        lev = deep if ga[k] + half < 0.0 and va[k] >= -tiny else half
+        fa, fb = ga[k] + lev, gb[k] + lev
+        if min(fa, fb) >= band:
+            continue
+        if fb < 0.0:
+            return False, smallest
+        da, db = h * va[k], h * vb[k]
+        for j in range(_hermite_extrema(fa, fb, da, db, ext)):
+            hv = _hermite(fa, fb, da, db, ext[j])
+            if hv < 0.0 or hv < dip < min(fa, fb) - hv:
+                return False, smallest
+    return True, smallest
 
 
 def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):
@@ -141,8 +193,20 @@ def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):
             ok = (S[GA + lane] >= band) & (S[GB + lane] >= band) & (total - total == 0.0)
             quiet[lane] = ok
             stop += live[lane] & (1 - ok)
-        if stop:
-            return i
+        if stop:       # a live lane near a wall: the exact loop's own test for an event in the step
+            stop = 0
+            ext = S[_SCRATCH * _W:_SCRATCH * _W + 2]
+            for lane in range(n):
+                if live[lane] and not quiet[lane]:
+                    ok, g = calm(t, t_next, lane_state(S, 0, lane), lane_state(S, QV, lane), lane_state(S, QB, lane),
+                                 lane_state(S, QVB, lane), p, tol, ext)
+                    if ok:
+                        quiet[lane] = 1
+                        S[GB + lane] = g
+                    else:
+                        stop += 1
+            if stop:
+                return i
         for lane in range(n):
             for r in range(12):
                 S[r * _W + lane] = S[QB + r * _W + lane]

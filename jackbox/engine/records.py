@@ -105,13 +105,15 @@ SIGNATURES = {
 LANES = 16
 #: rows of a block's state (each LANES floats, free boxes: six coordinates): q, qd, the trial q and qd
 #: of the step the lanes stopped before, then the bound on every gap at the start and at the trial's end,
-#: the trial step's band, and the bound on the gaps' speed at the start and at the trial's end
-BLOCK_ROWS = 4 * 6 + 5
+#: the trial step's band, the bound on the gaps' speed at the start and at the trial's end, and scratch
+BLOCK_ROWS = 4 * 6 + 6
 #: the row of each lane's bound on its gaps (NaN: to be computed again), the next that at the trial's end
 BOUND_ROW = 24
 #: the row of each lane's bound on its gaps' speed (with the bound, computed again where that is NaN), the
 #: next that at the trial's end
 SPEED_ROW = 27
+#: a row of scratch for the lanes (a cubic's stationary points)
+SCRATCH_ROW = 29
 
 #: integer fields of the model record, then its functions
 SIZES = ("n_dof", "n_contact", "n_wall", "e_slot", "e_ground_slot", "prescribed", "has_ground")
