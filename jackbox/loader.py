@@ -233,6 +233,7 @@ def _binding_parts(model_text: str, flight_text: str, lanes_text: str, digest: s
             rule + f"# Binding part (jackbox.loader): the model's {', '.join(entries)} as the engine's function "
             + ("values" if len(entries) > 1 else "value") + "\n"
             + "".join(f"# signature of {entry}: {engine.SIGNATURES[entry]}\n" for entry in entries)
+            + "# compiled without reference counting (jackbox.engine.bind_part)\n"
             + (f"# engine: {digest}\n" if engine_code else "")
             + rule + "\n"
             + "\n\n\n".join(blocks[i][1] for i in chosen) + "\n\n\n"
@@ -263,9 +264,11 @@ def part_entries() -> dict[str, tuple[str, ...]]:
 
 #: the helpers of the hot path a part compiles as njit functions (callees inlined by LLVM, or
 #: by Numba where marked), with their options
-_JITTED = {**{name: "" for name in ("tuple_of", "accel_s", "accel_time_s", "phi_s", "box_motion_s", "axpy_s",
-                                     "wsum_s", "gap_rate_s", "calm")},
-           **{name: ', inline="always"' for name in INLINED + LANES_INLINED}}
+_JITTED = {**{name: "" for name in ("tuple_of", "accel_s", "accel_time_s", "box_motion_s", "axpy_s", "wsum_s")},
+           **{name: ', inline="always"' for name in INLINED + LANES_INLINED},
+           # a lane near a wall (lanes.calm): phi_s and gap_rate_s inlined, so that LLVM computes the sine
+           # and cosine of each angle once for both; no references counted (calm allocates nothing)
+           **{name: ', inline="always"' for name in ("phi_s", "gap_rate_s")}, "calm": ", _nrt=False"}
 
 
 def _blocks(text: str) -> list[tuple[set, str, set]]:

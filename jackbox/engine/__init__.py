@@ -251,7 +251,9 @@ def bind_part(name: str, fn):
         # (Numba leaves LLVM's SLP vectoriser off, which the lanes need: it runs in Numba's first,
         # per-function pass and packs pairs of a lane's operations, which keeps the loop vectoriser
         # from packing eight lanes: 11.5 against 7 ns a lane-step, measured)
-        return numba.cfunc(SIGNATURES[name], cache=True)(fn)
+        # (and without reference counting: a model function allocates nothing and writes into the
+        # arrays it is handed, which its caller keeps alive; see NO_REFERENCES)
+        return numba.cfunc(SIGNATURES[name], cache=True, _nrt=False)(fn)
 
 
 def binding_name(path) -> str:

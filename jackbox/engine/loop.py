@@ -318,7 +318,7 @@ def integrate_exact(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, 
     return result
 
 
-@njit(cache=True, no_cpython_wrapper=True)
+@njit(cache=True, no_cpython_wrapper=True, _nrt=False)
 def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec,
                 log, n_ev, ws):
     """The body of :func:`integrate_exact`, on borrowed views and its scratch ``ws``."""
