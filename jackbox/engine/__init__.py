@@ -80,6 +80,10 @@ _loops: dict = {}
 #: and dropped it on return for every array it was handed, borrowed ones included (a call into Numba's
 #: runtime each, null or not: about 11% of an ensemble's time near the walls). Measured, drop at
 #: e = 0.6, 500 members x 3 s, one thread: 0.227 s against 0.272 s alone, 0.123 against 0.136 in lanes.
+#: A plain njit callee takes the setting of the caller it is first compiled for (Numba's ConfigStack)
+#: and keeps it for every caller: a function that hands back an array it did not allocate (its
+#: argument, a view) must therefore say ``_nrt=True`` itself, or an nrt-free first caller would leave
+#: a counting caller dropping a reference it never got (jackbox.engine.members does so).
 NO_REFERENCES = ("step", "update", "crossing", "release", "hold")
 #: the stages compiled on first need only: name -> its bit in Stages.missing (see jackbox.engine.loop)
 LAZY = {"release": NEED_RELEASE, "fallback": NEED_FALLBACK, "hold": NEED_HOLD}

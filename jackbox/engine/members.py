@@ -39,7 +39,7 @@ def new_log(size):
     return Events(np.empty(size), np.empty(size, np.int64), np.empty(size, np.int64))
 
 
-@njit(cache=True, no_cpython_wrapper=True)
+@njit(cache=True, no_cpython_wrapper=True, _nrt=True)     # (returns an array: see NO_REFERENCES)
 def run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, stop, out, n_rec, log, tally):
     """Steps i..stop of one member through any number of full event logs.
 
@@ -92,7 +92,7 @@ def new_tally():
     return clear_tally(np.empty(TALLY))
 
 
-@njit(cache=True, no_cpython_wrapper=True)
+@njit(cache=True, no_cpython_wrapper=True, _nrt=True)     # (returns an array: see NO_REFERENCES)
 def clear_tally(tally):
     """A tally of nothing yet (``tally`` filled and returned)."""
     for k in range(TALLY):
@@ -115,7 +115,7 @@ def new_modes(model):
     return clear_modes(np.empty(model.n_contact + MODE_SLOTS, np.int64))
 
 
-@njit(cache=True, no_cpython_wrapper=True)
+@njit(cache=True, no_cpython_wrapper=True, _nrt=True)     # (returns an array: see NO_REFERENCES)
 def clear_modes(rest):
     """Every contact free, the exact method on (``rest`` filled and returned)."""
     for k in range(rest.shape[0]):
@@ -479,7 +479,7 @@ def run_block(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, 
         fin[j, 6] = tally[TALLY_WARNINGS]
 
 
-@njit(cache=True, no_cpython_wrapper=True)
+@njit(cache=True, no_cpython_wrapper=True, _nrt=True)     # (returns an array: see NO_REFERENCES)
 def alone_to(model, exact, stages, q, qd, rest, p, tol, dt, i, end, out, tally, alive, status, reached, lane, log):
     """Member lane of a block alone through the exact loop from step i to end (q, qd updated); returns the log."""
     k, _, st, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, end, out, 1, log, tally)
