@@ -580,8 +580,9 @@ def markdown(result: dict) -> str:
         lines += [
             "",
             "`jackbox.ensemble.ensemble(scene, n, perturb={'theta_jack': 1e-6}, t_end=..., seed=0, threads=1 or 2, "
-            "lanes=True or False)`. In lanes: blocks of `engine.LANES` members in vector instructions while they fly "
-            f"free, every other step alone (the same bits). Efficiency 1 -> 2 threads in lanes, {SHAKEN}: "
+            "lanes=True or False)`. In lanes: blocks of `engine.LANES` members in vector instructions while no "
+            "member's step has an event (near a wall, the exact loop's own test), each step with an event or a held "
+            f"contact alone (the same bits). Efficiency 1 -> 2 threads in lanes, {SHAKEN}: "
             f"{e['efficiency']:.0%}.",
         ]
     else:
