@@ -393,7 +393,10 @@ def bench_ceiling(shaken: dict, repeat: int, size: dict) -> dict:
 
 #: the ensembles measured: shaken (free flight most of the time) and drop at e = 0.6 (contact
 #: heavy: hundreds of impulses a member, then resting contact), each in lanes and alone
-ENSEMBLES = ((SHAKEN, {}, 1.0, 1.0), (DROP, {"restitution": 0.6}, 0.25, 0.3))
+ENSEMBLES = ((SHAKEN, {}, 1.0, 1.0, "ensemble"), (DROP, {"restitution": 0.6}, 0.25, 0.3, "ensemble"),
+             (SHAKEN, {}, 0.5, 1.0, "chaos"))
+#: the issue's target for a chaos study (twins) of shaken in lanes, 2 threads
+TARGET_CHAOS_RATE = 1.5e8
 
 
 def bench_ensemble(repeat: int, size: dict) -> dict:
@@ -410,16 +413,17 @@ def bench_ensemble(repeat: int, size: dict) -> dict:
     if numba.config.NUMBA_NUM_THREADS < 2:
         return {"available": False, "reason": f"Numba has {numba.config.NUMBA_NUM_THREADS} thread(s)"}
     studies = []
-    for scene_name, over, n_share, t_share in ENSEMBLES:
+    for scene_name, over, n_share, t_share, kind in ENSEMBLES:
         scene = load_scene(scene_name, {k: str(v) for k, v in over.items()})
         n = max(16, int(size["ensemble_n"] * n_share))
         t_end = size["ensemble_t"] * t_share
+        study = ensemble.chaos if kind == "chaos" else ensemble.ensemble
 
         def go(threads, lanes, members=n):
-            return ensemble.ensemble(scene, members, perturb={"theta_jack": 1e-6}, t_end=t_end, seed=0,
-                                     threads=threads, lanes=lanes)
+            return study(scene, members, perturb={"theta_jack": 1e-6}, t_end=t_end, seed=0, threads=threads,
+                         lanes=lanes)
 
-        _say(f"{scene_name}: ensemble, {n} members x {t_end:g} s, in lanes and alone, 1 and 2 threads x {repeat}")
+        _say(f"{scene_name}: {kind}, {n} members x {t_end:g} s, in lanes and alone, 1 and 2 threads x {repeat}")
         go(2, True, 4), go(2, False, 4)              # compiled or loaded from the cache: not timed
         rates = {(lanes, t): [] for lanes in (True, False) for t in (1, 2)}
         seconds = {key: [] for key in rates}
@@ -430,13 +434,14 @@ def bench_ensemble(repeat: int, size: dict) -> dict:
                 rates[lanes, threads].append(e.meta["member_steps_per_second"])
                 seconds[lanes, threads].append(e.meta["run_seconds"])
                 first = e if first is None else first
-                same = same and np.array_equal(e.q, first.q, equal_nan=True) \
+                same = same and np.array_equal(e.stretch if kind == "chaos" else e.q,
+                                               first.stretch if kind == "chaos" else first.q, equal_nan=True) \
                     and np.array_equal(e.impacts, first.impacts)
         rate = {key: statistics.median(x) for key, x in rates.items()}
         rows = {("lanes" if lanes else "alone"): {
             str(t): {"member_steps_per_second": rate[lanes, t], "run_seconds": statistics.median(seconds[lanes, t]),
                      "samples_member_steps_per_second": rates[lanes, t]} for t in (1, 2)} for lanes in (True, False)}
-        studies.append({"scene": scene_name, "over": over, "n": n, "t_end": t_end,
+        studies.append({"scene": scene_name, "kind": kind, "over": over, "n": n, "t_end": t_end,
                         "member_steps": n * first.spec.n_steps, "impulses_per_member": float(first.impacts.mean()),
                         "rows": rows, "lanes_over_alone": {str(t): rate[True, t] / rate[False, t] for t in (1, 2)},
                         "efficiency": rate[True, 2] / (2 * rate[True, 1]), "same_results": bool(same)})
@@ -476,6 +481,11 @@ def targets(result: dict) -> list[dict]:
         out.append({"what": f"ensemble in lanes, 2 threads, {SHAKEN} (issue: members across SIMD lanes)",
                     "target": f">= {TARGET_LANES_RATE:.2g}", "value": r2, "met": r2 >= TARGET_LANES_RATE})
         for st in e["studies"][1:]:
+            if st.get("kind") == "chaos":
+                rc = st["rows"]["lanes"]["2"]["member_steps_per_second"]
+                out.append({"what": f"chaos study (twins) in lanes, 2 threads, {st['scene']}",
+                            "target": f">= {TARGET_CHAOS_RATE:.2g}", "value": rc, "met": rc >= TARGET_CHAOS_RATE})
+                continue
             gain = st["lanes_over_alone"]["2"]
             out.append({"what": f"ensemble in lanes / alone, 2 threads, {st['scene']} e = {st['over']['restitution']}",
                         "target": f">= {TARGET_LANES_GAIN:g}x", "value": gain, "met": gain >= TARGET_LANES_GAIN})
@@ -571,7 +581,8 @@ def markdown(result: dict) -> str:
         lines += ["| study | members | threads | in lanes, member-steps/s | alone | lanes / alone | run time in lanes "
                   "| same results |", "|---|---|---|---|---|---|---|---|"]
         for st in e["studies"]:
-            what = st["scene"] + "".join(f", {k} = {v:g}" for k, v in st["over"].items())
+            what = (("chaos twins, " if st.get("kind") == "chaos" else "") + st["scene"]
+                    + "".join(f", {k} = {v:g}" for k, v in st["over"].items()))
             for t in ("1", "2"):
                 lanes, alone = st["rows"]["lanes"][t], st["rows"]["alone"][t]
                 lines.append(f"| {what} | {st['n']} x {st['t_end']:g} s | {t} | {lanes['member_steps_per_second']:.3g} "
@@ -580,7 +591,8 @@ def markdown(result: dict) -> str:
         lines += [
             "",
             "`jackbox.ensemble.ensemble(scene, n, perturb={'theta_jack': 1e-6}, t_end=..., seed=0, threads=1 or 2, "
-            "lanes=True or False)`. In lanes: blocks of `engine.LANES` members in vector instructions while no "
+            "lanes=True or False)`, and `chaos(...)` with the same arguments (a pair of twins a member: two "
+            "member-steps a step). In lanes: blocks of `engine.LANES` members in vector instructions while no "
             "member's step has an event (near a wall, the exact loop's own test), each step with an event or a held "
             f"contact alone (the same bits). Efficiency 1 -> 2 threads in lanes, {SHAKEN}: "
             f"{e['efficiency']:.0%}.",

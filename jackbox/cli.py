@@ -209,10 +209,7 @@ def _parser() -> argparse.ArgumentParser:
     ens.add_argument("--samples", type=float, nargs="+", metavar="T",
                      help="times (s) at which to keep every member's state (rounded to whole steps)")
     ens.add_argument("--out", type=Path, metavar="DIR", help="output folder (default: runs/<scene name>)")
-    ens.add_argument("--lanes", choices=("auto", "yes", "no"), default="auto",
-                     help="members that share their parameters fly in blocks of SIMD lanes (the same numbers, "
-                          "faster): yes, no, or auto (default): where that wins back its compile time (a big "
-                          "study) or it is compiled already")
+    _lanes_option(ens, "members")
     ens.set_defaults(func=cmd_ensemble)
 
     chaos = sub.add_parser(
@@ -230,6 +227,7 @@ def _parser() -> argparse.ArgumentParser:
     chaos.add_argument("--renorm", type=_positive, metavar="S",
                        help="seconds between renormalisations (default: 100 steps)")
     chaos.add_argument("--out", type=Path, metavar="DIR", help="output folder (default: runs/<scene name>)")
+    _lanes_option(chaos, "twin pairs")
     chaos.set_defaults(func=cmd_chaos)
 
     from . import bench as _bench
@@ -375,13 +373,21 @@ def cmd_ensemble(args) -> int:
     return _study_status(result.completed)
 
 
+def _lanes_option(parser, what: str) -> None:
+    parser.add_argument("--lanes", choices=("auto", "yes", "no"), default="auto",
+                        help=f"{what} that share their parameters fly in blocks of SIMD lanes (the same numbers, "
+                             "faster): yes, no, or auto (default): where that wins back its compile time (a big "
+                             "study) or it is compiled already")
+
+
 def cmd_chaos(args) -> int:
     from .ensemble import chaos
     from .scene import load_scene
 
     scene = load_scene(args.scene, _overrides(args.overrides))
     out_dir = _out_dir(args, scene)
-    study = chaos(scene, args.n, d0=args.d0, renorm=args.renorm, **_study_kwargs(args))
+    lanes = {"auto": None, "yes": True, "no": False}[args.lanes]
+    study = chaos(scene, args.n, d0=args.d0, renorm=args.renorm, lanes=lanes, **_study_kwargs(args))
     from . import plots
 
     written = [study.save(out_dir / "chaos.npz"), plots.write_chaos(study, out_dir / "chaos.png")]

@@ -154,7 +154,9 @@ def use_lanes(spec: EnsembleSpec, kernel) -> bool:
     """
     if spec.lanes is not None:
         return spec.lanes
-    return spec.n * spec.n_steps >= LANES_WORTH or kernel.lanes_ready()
+    twins = spec.renorm_steps > 0
+    return (spec.n * spec.n_steps * (2 if twins else 1) >= LANES_WORTH
+            or kernel.lanes_ready("run_twin_member_blocks" if twins else "run_member_blocks"))
 
 
 def run_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray]:
@@ -196,7 +198,8 @@ def run_chaos_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.n
     stretch, fin = np.zeros((m, n_intervals)), np.zeros((m, 5))
     kernel.run_twin_members(rows["q0"], rows["qd0"], np.ascontiguousarray(offset[:, :n_dof]),
                             np.ascontiguousarray(offset[:, n_dof:]), rows["params"], rows["tol"], spec.dt,
-                            spec.n_steps, spec.renorm_steps, _chaos_scale(spec), stretch, fin, device=spec.device)
+                            spec.n_steps, spec.renorm_steps, _chaos_scale(spec), stretch, fin,
+                            lanes=spec.device == "cpu" and use_lanes(spec, kernel), device=spec.device)
     return {"stretch": stretch, "impacts": fin[:, 0].astype(np.int64), "status": fin[:, 1].astype(np.int64),
             "steps": fin[:, 2].astype(np.int64), "fallback": fin[:, 3], "warnings": fin[:, 4].astype(np.int64),
             "q0": rows["q0"], "qd0": rows["qd0"], "params": rows["params"], "offset": offset}
@@ -379,7 +382,7 @@ def ensemble(scene, n: int, perturb=None, params=None, t_end=None, dt=None, seed
 def chaos(scene, n: int, d0: float = 1e-8, renorm: float | None = None, perturb=None, params=None, t_end=None,
           dt=None, seed: int = 0, *, sweep=None, grid: bool = False, chunk: int | None = None,
           threads: int | None = None, scheduler: str | None = None, dask_local: int | None = None,
-          progress: bool = False, log=None, device: str = "cpu") -> ChaosStudy:
+          progress: bool = False, log=None, lanes: bool | None = None, device: str = "cpu") -> ChaosStudy:
     """Finite-time Lyapunov exponents of n members from renormalised twin trajectories.
 
     Each member (start state perturbed as in :func:`ensemble`) runs with a
@@ -392,10 +395,13 @@ def chaos(scene, n: int, d0: float = 1e-8, renorm: float | None = None, perturb=
 
     Across an impact the twins can lie on two sides of it for a moment, which
     shows as a jump of the separation; a small d0 keeps that window short.
+    lanes: as for :func:`ensemble`: the references and their twins in the
+    lanes of blocks of ``engine.LANES // 2`` pairs (the same numbers).
     device: as for :func:`ensemble` (a GPU thread runs a pair of twins).
     """
-    device = _device(device, scheduler, dask_local)
-    spec = dataclasses.replace(plan(scene, n, perturb, params, sweep, t_end, dt, seed, grid, None), device=device)
+    device = _device(device, scheduler, dask_local, lanes)
+    spec = dataclasses.replace(plan(scene, n, perturb, params, sweep, t_end, dt, seed, grid, None),
+                               lanes=None if lanes is None else bool(lanes), device=device)
     if not (is_number(d0) and math.isfinite(d0) and 0 < d0 < 1e-2):
         raise SimulationError(f"d0 must be a small positive number (below 1e-2), got {d0!r}")
     if renorm is not None and not (is_number(renorm) and math.isfinite(renorm)):

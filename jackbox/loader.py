@@ -526,19 +526,26 @@ class Kernel:
                 whole[again] = part
 
     def run_twin_members(self, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin,
-                         device: str = "cpu"):
-        """Twins of every member, in parallel; members stopped for a stage not compiled run again (see run_members)."""
+                         lanes: bool = False, device: str = "cpu"):
+        """Twins of every member, in parallel; members stopped for a stage not compiled run again (see run_members).
+
+        lanes: in blocks of ``engine.LANES // 2`` pairs, the references and
+        their twins in the lanes of one block
+        (:func:`jackbox.engine.members.run_twin_member_blocks`; the same numbers).
+        """
         if device == "cuda":
             from .engine import gpu
             return gpu.run_twin_members(self.gpu(), Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale,
                                         stretch, fin)
-        engine.entry("run_twin_members")(self.table(), Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale,
-                                         stretch, fin)
+        entry, kernel = "run_twin_members", self
+        if lanes and self.lanes_apply(P, TOL):
+            entry, kernel = "run_twin_member_blocks", self.with_lanes()
+        engine.entry(entry)(kernel.table(), Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin)
         again = np.flatnonzero(fin[:, 1] == engine.MISSING)
         if again.size:
             outputs = (np.zeros_like(stretch[again]), np.zeros_like(fin[again]))
-            engine.entry("run_twin_members")(self._all_stages(), *(a[again] for a in (Q0, QD0, DQ, DQD, P, TOL)),
-                                             dt, n_steps, renorm_steps, scale, *outputs)
+            engine.entry(entry)(kernel._all_stages(), *(a[again] for a in (Q0, QD0, DQ, DQD, P, TOL)),
+                                dt, n_steps, renorm_steps, scale, *outputs)
             stretch[again], fin[again] = outputs
 
     @property
@@ -551,14 +558,14 @@ class Kernel:
         return (self.has_lanes and P.shape[0] > 0
                 and bool((P == P[0]).all()) and bool((TOL == TOL[0]).all()))
 
-    def lanes_ready(self) -> bool:
-        """Whether this model's lanes and the engine's block loop are compiled or cached (nothing to compile)."""
+    def lanes_ready(self, entry: str = "run_member_blocks") -> bool:
+        """Whether this model's lanes and the engine's block loop ``entry`` are compiled or cached (nothing to compile)."""
         if not self.has_lanes:
             return False
         text = binding_parts(Path(self.__file__).read_text(), lanes=True)["lanes"]
         path = part_path("lanes", text)
         return ((self.module.LANES or str(path) in _parts or _cached("lanes", path))
-                and (bool(engine._dispatcher("run_member_blocks").signatures) or engine.cached("run_member_blocks")))
+                and (bool(engine._dispatcher(entry).signatures) or engine.cached(entry)))
 
     def with_lanes(self) -> "Kernel":
         """This model with its own lanes bound (compiled on first use), for ensemble blocks."""

@@ -71,7 +71,8 @@ def test_throughput_quick_mode(tmp_path):
         for threads in ("1", "2"):
             assert _positive(ens["threads"][threads]["member_steps_per_second"]), threads
         assert _positive(ens["efficiency"]) and ens["same_results"] is True
-        assert [st["scene"] for st in ens["studies"]] == ["shaken", "drop"]
+        assert [(st["kind"], st["scene"]) for st in ens["studies"]] == [("ensemble", "shaken"), ("ensemble", "drop"),
+                                                                         ("chaos", "shaken")]
         for st in ens["studies"]:     # in lanes and alone: the same members, bit for bit
             assert st["same_results"] is True and all(
                 _positive(st["rows"][way][t]["member_steps_per_second"]) for way in ("lanes", "alone") for t in "12")

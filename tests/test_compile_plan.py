@@ -108,25 +108,27 @@ def test_a_run_that_needs_the_fallback_compiles_it_mid_run_and_changes_nothing(m
         np.testing.assert_array_equal(getattr(lazy, key), getattr(whole, key), err_msg=key)
 
 
-@pytest.mark.parametrize("study", ["ensemble", "ensemble alone", "chaos"])
+@pytest.mark.parametrize("study", ["ensemble", "ensemble alone", "chaos", "chaos alone"])
 def test_a_study_compiles_a_stage_when_a_member_first_needs_it_and_changes_nothing(monkeypatch, fresh_kernels, study):
     # members that reach a held contact stop (MISSING), the stage is compiled, and they run again from their start
     # (an ensemble's members in blocks of lanes, or each alone)
     scene = jackbox.load_scene("drop", {"restitution": 0.0, "ground_restitution": 0.0})
     kwargs = {"perturb": {"theta_jack": 0.3}, "t_end": 1.5}
-    run = ((lambda: ensemble(scene, 6, lanes=study == "ensemble", **kwargs)) if study != "chaos"
-           else (lambda: chaos(scene, 6, **kwargs)))
+    in_lanes = study in ("ensemble", "chaos")
+    run = ((lambda: ensemble(scene, 6, lanes=in_lanes, **kwargs)) if study.startswith("ensemble")
+           else (lambda: chaos(scene, 6, lanes=in_lanes, **kwargs)))
     whole = run()
     _without_lazy_stages(monkeypatch)
     entry, calls = engine.entry, []
-    name = {"ensemble": "run_member_blocks", "ensemble alone": "run_members", "chaos": "run_twin_members"}[study]
+    name = {"ensemble": "run_member_blocks", "ensemble alone": "run_members", "chaos": "run_twin_member_blocks",
+            "chaos alone": "run_twin_members"}[study]
     monkeypatch.setattr(engine, "entry", lambda n: (lambda *a: calls.append(len(a[1])) or entry(n)(*a))
                         if n == name else entry(n))
     lazy = run()
     assert calls[0] == 6 and 0 < calls[1] <= 6 and len(calls) == 2, calls     # all, then those that stopped
     assert {"release", "fallback"} <= set(engine._loops)
     assert (lazy.status == engine.DONE).all()
-    keys = ("q", "qd", "energy", "impacts", "steps", "fallback", "samples_q") if study != "chaos" else \
+    keys = ("q", "qd", "energy", "impacts", "steps", "fallback", "samples_q") if study.startswith("ensemble") else \
         ("stretch", "impacts", "steps", "fallback")
     for key in keys:
         np.testing.assert_array_equal(getattr(lazy, key), getattr(whole, key), err_msg=key)

@@ -16,6 +16,7 @@ threads, processes or machines gives the same numbers bit for bit.
 """
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit, prange
@@ -235,10 +236,7 @@ def follow_twins(model, exact, stages, q, qd, qt, qdt, dq, dqd, p, tol, dt, n_st
     for d in range(n):
         qt[d] += dq[d]
         qdt[d] += dqd[d]
-    d0 = 0.0
-    for d in range(n):
-        d0 += (dq[d] / scale[d]) ** 2 + (dqd[d] / scale[n + d]) ** 2
-    d0 = math.sqrt(d0)
+    d0 = twin_distance(dq, dqd, scale, n)
     clear_modes(rest)
     clear_modes(rest_t)
     clear_tally(tally)
@@ -258,23 +256,7 @@ def follow_twins(model, exact, stages, q, qd, qt, qdt, dq, dqd, p, tol, dt, n_st
         n_rec = 1
         if status != DONE:
             break
-        dist = 0.0
-        for d in range(n):
-            dist += ((qt[d] - q[d]) / scale[d]) ** 2 + ((qdt[d] - qd[d]) / scale[n + d]) ** 2
-        dist = math.sqrt(dist)
-        if not dist > 0.0:      # the twins met (round-off): no stretch to measure, restart the twin
-            stretch[k] = np.nan
-            for d in range(n):
-                qt[d] = q[d] + dq[d]
-                qdt[d] = qd[d] + dqd[d]
-        else:
-            stretch[k] = math.log(dist / d0)
-            f = d0 / dist
-            for d in range(n):
-                qt[d] = q[d] + f * (qt[d] - q[d])
-                qdt[d] = qd[d] + f * (qdt[d] - qd[d])
-        if rest_t[model.n_contact + MODE_AT] == 0:
-            rest_t[model.n_contact + MODE_AT] = -1
+        stretch[k] = renormalise(q, qd, qt, qdt, dq, dqd, scale, d0, rest_t, n, model.n_contact)
         k += 1
     for j in range(k, stretch.shape[0]):
         stretch[j] = np.nan
@@ -283,6 +265,43 @@ def follow_twins(model, exact, stages, q, qd, qt, qdt, dq, dqd, p, tol, dt, n_st
     fin[2] = i
     fin[3] = fallback_time(tally, i * dt) + fallback_time(tally_t, i2 * dt)
     fin[4] = tally[TALLY_WARNINGS] + tally_t[TALLY_WARNINGS]
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def twin_distance(dq, dqd, scale, n):
+    """The scaled length of a twin's offset (dq, dqd) of n coordinates."""
+    d0 = 0.0
+    for d in range(n):
+        d0 += (dq[d] / scale[d]) ** 2 + (dqd[d] / scale[n + d]) ** 2
+    return math.sqrt(d0)
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def renormalise(q, qd, qt, qdt, dq, dqd, scale, d0, rest_t, n, C):
+    """Benettin's renormalisation: the twin put back at distance d0 along its separation; returns log(d / d0).
+
+    NaN where the twins met (round-off): the twin restarts at its first
+    offset. The twin's contact set is to be found again at its next step
+    (its state moved), unless it is in the fallback.
+    """
+    dist = 0.0
+    for d in range(n):
+        dist += ((qt[d] - q[d]) / scale[d]) ** 2 + ((qdt[d] - qd[d]) / scale[n + d]) ** 2
+    dist = math.sqrt(dist)
+    if not dist > 0.0:
+        out = np.nan
+        for d in range(n):
+            qt[d] = q[d] + dq[d]
+            qdt[d] = qd[d] + dqd[d]
+    else:
+        out = math.log(dist / d0)
+        f = d0 / dist
+        for d in range(n):
+            qt[d] = q[d] + f * (qt[d] - q[d])
+            qdt[d] = qd[d] + f * (qdt[d] - qd[d])
+    if rest_t[C + MODE_AT] == 0:
+        rest_t[C + MODE_AT] = -1
+    return out
 
 
 @njit(cache=True)
@@ -301,6 +320,13 @@ def all_twins(model, exact, stages, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renor
 
 # ---------------------------------------------------------------------------
 # blocks: LANES members that share their parameters, stepped together in free flight
+
+#: a block of members in lanes: its state (rows of LANES floats, see jackbox.engine.lanes), then per lane
+#: whether it steps in the lanes now, the step it is back from a stretch alone (-1: none), whether its
+#: trial step was quiet, whether it runs, its status and the step it reached, its contact modes, its
+#: tally, and its state while it steps alone
+Block = namedtuple("Block", ["S", "live", "back", "quiet", "alive", "status", "reached", "rests", "tallies", "held_q",
+                             "held_qd"])
 
 #: steps of a block between looks at which of its members are free (a member with a held contact or
 #: in the fallback steps alone, through the exact loop, to the end of such a stretch)
@@ -340,32 +366,109 @@ def put_lane(S, lane, q, qd):
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def run_block(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin,
-              first, count):
-    """Members first .. first + count - 1 (count <= LANES) as one block; outputs as :func:`run_member`'s.
+def new_block(model):
+    """A block's state (rows of LANES floats, see :mod:`.lanes`) and the per-lane arrays that go with it."""
+    W, C = LANES, model.n_contact
+    return Block(np.zeros(BLOCK_ROWS * W), np.zeros(W, np.int64), np.zeros(W, np.int64), np.zeros(W, np.int64),
+                 np.zeros(W, np.int64), np.zeros(W, np.int64), np.zeros(W, np.int64),
+                 np.zeros((W, C + MODE_SLOTS), np.int64), np.empty((W, TALLY)), np.empty((W, 6)), np.empty((W, 6)))
 
-    The members share p and tol. Free members go through the model's lanes
-    together (``model.lanes``): each step that is quiet for all of them is one
-    vector step of the block. A member whose step is not quiet goes alone
-    through the exact loop (``exact``) for ALONE steps and rejoins; one that
+
+@njit(cache=True, no_cpython_wrapper=True)
+def start_lane(model, exact, stages, B, lane, q, qd, p, tol, dt, out, log):
+    """Lane ``lane`` of block B from (q, qd): its contact set found and its start recorded into ``out`` (step 0)."""
+    copy_to(B.tallies[lane], new_tally())
+    i, _, st, log = run_segment(model, exact, stages, q, qd, B.rests[lane], p, tol, dt, 0, 0, out, 0, log,
+                                B.tallies[lane])
+    B.status[lane] = st
+    B.reached[lane] = i
+    B.alive[lane] = 1 if st == DONE else 0
+    put_lane(B.S, lane, q, qd)
+    return log
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def block_to(model, exact, stages, B, p, tol, dt, i, stop, out, log):
+    """Every live lane of block B from step i to stop; returns the log.
+
+    Free members go through the model's lanes together (``model.lanes``): each
+    step that no member has an event in is one vector step of the block. A
+    member whose step has one goes alone through the exact loop for ALONE steps
+    and rejoins; so does a chaos twin that its renormalisation moved (its
+    contact set is found again in its next step, by the exact loop); one that
     holds a contact or is in the fallback goes alone to the end of the CHUNK.
     A member's numbers are those :func:`run_member` gives it, bit for bit: the
     lanes take only steps the exact loop would take as a plain RK4 step, with
     the same operations, and a call of the exact loop from any step goes on as
-    one that got there itself. Lanes past count hold a copy of the last
-    member's start and are never stepped but in the vectors (not written).
+    one that got there itself.
     """
-    W, n, C = LANES, 6, model.n_contact
-    S = np.zeros(BLOCK_ROWS * W)
-    live = np.zeros(W, np.int64)
-    back = np.zeros(W, np.int64)
-    quiet = np.zeros(W, np.int64)
-    alive = np.zeros(W, np.int64)
-    status = np.zeros(W, np.int64)
-    reached = np.zeros(W, np.int64)
-    rests = np.zeros((W, C + MODE_SLOTS), np.int64)
-    tallies = np.empty((W, TALLY))
-    held_q, held_qd = np.empty((W, n)), np.empty((W, n))
+    W, C = LANES, model.n_contact
+    S, live, back, quiet, alive, rests = B.S, B.live, B.back, B.quiet, B.alive, B.rests
+    while i < stop:
+        end = min(stop, i + CHUNK)
+        for lane in range(W):
+            live[lane] = 1 if alive[lane] == 1 and is_free(rests[lane], C) else 0
+            back[lane] = -1
+            if alive[lane] == 1 and live[lane] == 0:      # held, in the fallback or moved: alone for a while
+                take_lane(S, lane, B.held_q[lane], B.held_qd[lane])
+                back[lane] = min(i + ALONE, end) if rests[lane, C + MODE_AT] == -1 else end
+                log = alone_to(model, exact, stages, B, lane, p, tol, dt, i, back[lane], out, log)
+        j = i
+        while j < end:
+            j_stop = end
+            for lane in range(W):
+                if back[lane] == j:                    # back from a stretch alone
+                    put_lane(S, lane, B.held_q[lane], B.held_qd[lane])
+                    back[lane] = -1
+                    if alive[lane] == 1 and is_free(rests[lane], C):
+                        live[lane] = 1
+                    elif alive[lane] == 1:
+                        back[lane] = end
+                        log = alone_to(model, exact, stages, B, lane, p, tol, dt, j, end, out, log)
+                if back[lane] > j:
+                    j_stop = min(j_stop, back[lane])
+            n_live = 0
+            for lane in range(W):
+                n_live += live[lane]
+            if n_live == 0:
+                j = j_stop
+                continue
+            j = model.lanes(0.0, dt, j, j_stop, S, p, tol, live, quiet)
+            if j == j_stop:
+                continue
+            for lane in range(W):
+                if not live[lane]:
+                    continue
+                if quiet[lane]:            # the trial of step j is this lane's next state
+                    for d in range(12):
+                        S[d * W + lane] = S[(12 + d) * W + lane]
+                    S[BOUND_ROW * W + lane] = S[(BOUND_ROW + 1) * W + lane]
+                    S[SPEED_ROW * W + lane] = S[(SPEED_ROW + 1) * W + lane]
+                    continue
+                # an event in the step: alone through the exact loop for a stretch, then back
+                take_lane(S, lane, B.held_q[lane], B.held_qd[lane])
+                live[lane] = 0
+                back[lane] = min(j + ALONE, end)
+                log = alone_to(model, exact, stages, B, lane, p, tol, dt, j, back[lane], out, log)
+            j += 1
+        for lane in range(W):
+            if back[lane] >= 0:
+                put_lane(S, lane, B.held_q[lane], B.held_qd[lane])
+        i = end
+    return log
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def run_block(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin,
+              first, count):
+    """Members first .. first + count - 1 (count <= LANES) as one block; outputs as :func:`run_member`'s.
+
+    The members share p and tol; the block steps them through
+    :func:`block_to`. Lanes past count hold a copy of the last member's start
+    and are never stepped but in the vectors (not written).
+    """
+    W, n = LANES, 6
+    B = new_block(model)
     q, qd = np.empty(n), np.empty(n)
     out = new_samples(2)
     log = new_log(LOG_SIZE)
@@ -375,15 +478,11 @@ def run_block(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, 
         j = first + min(lane, count - 1)
         copy_to(q, Q0[j])
         copy_to(qd, QD0[j])
-        copy_to(tallies[lane], new_tally())
         if lane >= count:           # padding: flies along in the vectors, never stepped alone
-            put_lane(S, lane, q, qd)
+            copy_to(B.tallies[lane], new_tally())
+            put_lane(B.S, lane, q, qd)
             continue
-        i, _, st, log = run_segment(model, exact, stages, q, qd, rests[lane], p, tol, dt, 0, 0, out, 0, log, tallies[lane])
-        status[lane] = st
-        reached[lane] = i
-        alive[lane] = 1 if st == DONE else 0
-        put_lane(S, lane, q, qd)
+        log = start_lane(model, exact, stages, B, lane, q, qd, p, tol, dt, out, log)
         if at_zero:
             copy_to(samp_q[j, 0], out.q[0])
             copy_to(samp_qd[j, 0], out.qd[0])
@@ -394,66 +493,14 @@ def run_block(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, 
     i = 0
     while i < n_steps:
         stop = sample_steps[s] if s < n_samples else n_steps
-        while i < stop:
-            end = min(stop, i + CHUNK)
-            for lane in range(W):
-                live[lane] = 1 if alive[lane] == 1 and is_free(rests[lane], C) else 0
-                back[lane] = -1
-                if alive[lane] == 1 and live[lane] == 0:      # held, or in the fallback: alone to the end
-                    take_lane(S, lane, held_q[lane], held_qd[lane])
-                    log = alone_to(model, exact, stages, held_q[lane], held_qd[lane], rests[lane], p, tol, dt, i, end, out,
-                                   tallies[lane], alive, status, reached, lane, log)
-                    back[lane] = end
-            j = i
-            while j < end:
-                j_stop = end
-                for lane in range(W):
-                    if back[lane] == j:                    # back from a stretch alone
-                        put_lane(S, lane, held_q[lane], held_qd[lane])
-                        back[lane] = -1
-                        if alive[lane] == 1 and is_free(rests[lane], C):
-                            live[lane] = 1
-                        elif alive[lane] == 1:
-                            log = alone_to(model, exact, stages, held_q[lane], held_qd[lane], rests[lane], p, tol, dt, j, end,
-                                           out, tallies[lane], alive, status, reached, lane, log)
-                            back[lane] = end
-                    if back[lane] > j:
-                        j_stop = min(j_stop, back[lane])
-                n_live = 0
-                for lane in range(W):
-                    n_live += live[lane]
-                if n_live == 0:
-                    j = j_stop
-                    continue
-                j = model.lanes(0.0, dt, j, j_stop, S, p, tol, live, quiet)
-                if j == j_stop:
-                    continue
-                for lane in range(W):
-                    if not live[lane]:
-                        continue
-                    if quiet[lane]:            # the trial of step j is this lane's next state
-                        for d in range(2 * n):
-                            S[d * W + lane] = S[(2 * n + d) * W + lane]
-                        S[BOUND_ROW * W + lane] = S[(BOUND_ROW + 1) * W + lane]
-                        S[SPEED_ROW * W + lane] = S[(SPEED_ROW + 1) * W + lane]
-                        continue
-                    # near contact: alone through the exact loop for a stretch, then back
-                    take_lane(S, lane, held_q[lane], held_qd[lane])
-                    live[lane] = 0
-                    back[lane] = min(j + ALONE, end)
-                    log = alone_to(model, exact, stages, held_q[lane], held_qd[lane], rests[lane], p, tol, dt, j, back[lane], out,
-                                   tallies[lane], alive, status, reached, lane, log)
-                j += 1
-            for lane in range(W):
-                if back[lane] >= 0:
-                    put_lane(S, lane, held_q[lane], held_qd[lane])
-            i = end
+        log = block_to(model, exact, stages, B, p, tol, dt, i, stop, out, log)
+        i = stop
         sampled = s < n_samples and stop == sample_steps[s]
         for lane in range(count):
-            if not alive[lane]:
+            if not B.alive[lane]:
                 continue
             j = first + lane
-            take_lane(S, lane, q, qd)
+            take_lane(B.S, lane, q, qd)
             if sampled:
                 copy_to(samp_q[j, s], q)
                 copy_to(samp_qd[j, s], qd)
@@ -464,27 +511,28 @@ def run_block(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, 
             s += 1
         n_alive = 0
         for lane in range(W):
-            n_alive += alive[lane]
+            n_alive += B.alive[lane]
         if n_alive == 0:
             break
     for lane in range(count):
         j = first + lane
-        tally = tallies[lane]
-        done = alive[lane] == 1
+        tally = B.tallies[lane]
+        done = B.alive[lane] == 1
         fin[j, 1] = tally[TALLY_IMPULSES]
         fin[j, 2] = tally[TALLY_FIRST]
-        fin[j, 3] = DONE if done else status[lane]
-        fin[j, 4] = n_steps if done else reached[lane]
+        fin[j, 3] = DONE if done else B.status[lane]
+        fin[j, 4] = n_steps if done else B.reached[lane]
         fin[j, 5] = fallback_time(tally, fin[j, 4] * dt)
         fin[j, 6] = tally[TALLY_WARNINGS]
 
 
 @njit(cache=True, no_cpython_wrapper=True, _nrt=True)     # (returns an array: see NO_REFERENCES)
-def alone_to(model, exact, stages, q, qd, rest, p, tol, dt, i, end, out, tally, alive, status, reached, lane, log):
-    """Member lane of a block alone through the exact loop from step i to end (q, qd updated); returns the log."""
-    k, _, st, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, end, out, 1, log, tally)
+def alone_to(model, exact, stages, B, lane, p, tol, dt, i, end, out, log):
+    """Member ``lane`` of block B alone through the exact loop from step i to end (its state in B.held_q, B.held_qd)."""
+    k, _, st, log = run_segment(model, exact, stages, B.held_q[lane], B.held_qd[lane], B.rests[lane], p, tol, dt, i,
+                                end, out, 1, log, B.tallies[lane])
     if st != DONE:
-        alive[lane], status[lane], reached[lane] = 0, st, k
+        B.alive[lane], B.status[lane], B.reached[lane] = 0, st, k
     return log
 
 
@@ -503,6 +551,112 @@ def all_blocks(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps,
         first = b * LANES
         run_block(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd,
                   fin, first, min(LANES, N - first))
+
+
+#: chaos twins in a block: the references in its first PAIRS lanes, their twins in the others
+PAIRS = LANES // 2
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, dt, n_steps, renorm_steps, scale, stretch, fin,
+                   first, count):
+    """Twins of members first .. first + count - 1 (count <= PAIRS) as one block; outputs as :func:`run_twins`'s.
+
+    The references step in the block's first PAIRS lanes and their twins in
+    the others, through :func:`block_to` up to each renormalisation, which
+    moves each twin as :func:`follow_twins` does (:func:`renormalise`). A pair
+    ends at the first renormalisation after either of it stopped, with what
+    follow_twins reports: it runs a reference's interval before its twin's,
+    so where the reference stopped, the twin's interval counts for nothing
+    (its tally and step as at the interval's start).
+    """
+    n, C = 6, model.n_contact
+    B = new_block(model)
+    q, qd, qt, qdt = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    out = new_samples(2)
+    log = new_log(LOG_SIZE)
+    kept = np.empty((PAIRS, TALLY))          # each twin's tally at the interval's start
+    d0 = np.empty(PAIRS)
+    k = np.zeros(PAIRS, np.int64)            # renormalisations done
+    step = np.zeros(PAIRS, np.int64)         # a reference's step reached, then its twin's (pairs that ended)
+    step_t = np.zeros(PAIRS, np.int64)
+    status = np.zeros(PAIRS, np.int64)
+    ended = np.zeros(PAIRS, np.int64)
+    for r in range(PAIRS):
+        j = first + min(r, count - 1)
+        for d in range(n):
+            q[d] = Q0[j, d]
+            qd[d] = QD0[j, d]
+            qt[d] = q[d] + DQ[j, d]
+            qdt[d] = qd[d] + DQD[j, d]
+        if r >= count:              # padding: flies along in the vectors, never stepped alone
+            copy_to(B.tallies[r], new_tally())
+            copy_to(B.tallies[PAIRS + r], new_tally())
+            put_lane(B.S, r, q, qd)
+            put_lane(B.S, PAIRS + r, qt, qdt)
+            continue
+        d0[r] = twin_distance(DQ[j], DQD[j], scale, n)
+        copy_to(kept[r], new_tally())
+        log = start_lane(model, exact, stages, B, r, q, qd, p, tol, dt, out, log)
+        log = start_lane(model, exact, stages, B, PAIRS + r, qt, qdt, p, tol, dt, out, log)
+    i = 0
+    n_ended = 0
+    while i < n_steps and n_ended < count:
+        stop = min(i + renorm_steps, n_steps)
+        log = block_to(model, exact, stages, B, p, tol, dt, i, stop, out, log)
+        for r in range(count):
+            if ended[r]:
+                continue
+            tw = PAIRS + r
+            if not B.alive[r] or not B.alive[tw]:
+                ended[r] = 1
+                n_ended += 1
+                if not B.alive[r]:          # the reference stopped: its twin's interval is not run
+                    status[r], step[r], step_t[r] = B.status[r], B.reached[r], i
+                    copy_to(B.tallies[tw], kept[r])
+                else:
+                    status[r], step[r], step_t[r] = B.status[tw], stop, B.reached[tw]
+                B.alive[r] = 0
+                B.alive[tw] = 0
+                continue
+            j = first + r
+            take_lane(B.S, r, q, qd)
+            take_lane(B.S, tw, qt, qdt)
+            stretch[j, k[r]] = renormalise(q, qd, qt, qdt, DQ[j], DQD[j], scale, d0[r], B.rests[tw], n, C)
+            put_lane(B.S, tw, qt, qdt)
+            k[r] += 1
+            copy_to(kept[r], B.tallies[tw])
+        i = stop
+    for r in range(count):
+        j = first + r
+        if not ended[r]:
+            status[r], step[r], step_t[r] = DONE, n_steps, n_steps
+        for m in range(k[r], stretch.shape[1]):
+            stretch[j, m] = np.nan
+        tally, tally_t = B.tallies[r], B.tallies[PAIRS + r]
+        fin[j, 0] = tally[TALLY_IMPULSES]
+        fin[j, 1] = status[r]
+        fin[j, 2] = step[r]
+        fin[j, 3] = fallback_time(tally, step[r] * dt) + fallback_time(tally_t, step_t[r] * dt)
+        fin[j, 4] = tally[TALLY_WARNINGS] + tally_t[TALLY_WARNINGS]
+
+
+@njit(cache=True)
+def run_twin_member_blocks(table, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin):
+    """:func:`run_twin_members` in blocks of PAIRS twin pairs (:func:`run_twin_block`), in parallel; the members share
+    P[0], TOL[0]."""
+    model, exact, stages = parts(table)
+    all_twin_blocks(model, exact, stages, Q0, QD0, DQ, DQD, P[0], TOL[0], dt, n_steps, renorm_steps, scale, stretch,
+                    fin)
+
+
+@njit(cache=True, no_cpython_wrapper=True, parallel=True)
+def all_twin_blocks(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, dt, n_steps, renorm_steps, scale, stretch, fin):
+    N = Q0.shape[0]
+    for b in prange((N + PAIRS - 1) // PAIRS):
+        first = b * PAIRS
+        run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, dt, n_steps, renorm_steps, scale, stretch, fin,
+                       first, min(PAIRS, N - first))
 
 
 # ---------------------------------------------------------------------------
