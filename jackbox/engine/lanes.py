@@ -84,6 +84,12 @@ def tolerances_of(tol):
             tol[12], tol[13])
 
 
+def finite(qn, vn):
+    """Whether a lane's twelve numbers are all finite, without a branch (a NaN or an infinity spreads to the sum)."""
+    total = qn[0] + qn[1] + qn[2] + qn[3] + qn[4] + qn[5] + vn[0] + vn[1] + vn[2] + vn[3] + vn[4] + vn[5]
+    return total - total == 0.0
+
+
 def calm(t, t_next, q, qd, qn, vn, p, tol, ext):
     """Whether the exact loop finds no event in a step that is not quiet by the bounds; and the smallest gap at its end.
 
@@ -99,8 +105,7 @@ def calm(t, t_next, q, qd, qn, vn, p, tol, ext):
     this says no: the member goes through the exact loop. Returns ``(calm,
     smallest gap at t_next)``.
     """
-    total = qn[0] + qn[1] + qn[2] + qn[3] + qn[4] + qn[5] + vn[0] + vn[1] + vn[2] + vn[3] + vn[4] + vn[5]
-    if not total - total == 0.0:
+    if not finite(qn, vn):
         return False, 0.0
     h = t_next - t
     half = 0.5 * tol[_T_EVENT_L]
@@ -187,10 +192,9 @@ def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):
         stop = 0
         for lane in range(n):
             qn, vn = lane_state(S, QB, lane), lane_state(S, QVB, lane)
-            total = qn[0] + qn[1] + qn[2] + qn[3] + qn[4] + qn[5] + vn[0] + vn[1] + vn[2] + vn[3] + vn[4] + vn[5]
             band = S[BAND + lane]
             # quiet at both ends, and finite (min and max hide a NaN)
-            ok = (S[GA + lane] >= band) & (S[GB + lane] >= band) & (total - total == 0.0)
+            ok = (S[GA + lane] >= band) & (S[GB + lane] >= band) & finite(qn, vn)
             quiet[lane] = ok
             stop += live[lane] & (1 - ok)
         if stop:       # a live lane near a wall: the exact loop's own test for an event in the step
@@ -219,4 +223,4 @@ def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):
 
 #: the helpers a lanes part inlines at Numba's level (``inline="always"``): a loop over the lanes
 #: with a call left in it is not vectorised
-INLINED = ("sincos", "lane_state", "clearance_v", "lane_bound", "params_of", "tolerances_of")
+INLINED = ("sincos", "lane_state", "clearance_v", "lane_bound", "params_of", "tolerances_of", "finite")
