@@ -39,6 +39,24 @@ def test_second_process_loads_the_kernel_from_cache(tmp_path):
     assert runs[1]["load_seconds"] < runs[0]["load_seconds"] / 3
 
 
+def test_a_warm_process_loads_machine_code_without_numbas_lowering_registries(tmp_path):
+    # Numba refreshes its target context before every cache load, importing all of its lowering
+    # code (0.4 s, most of a warm start); jackbox's cache loads as is, and a compile later in the
+    # process still sees every registry (Numba's compiler refreshes the context itself).
+    env = os.environ | {"JACKBOX_CACHE_DIR": str(tmp_path)}
+    env.pop("NUMBA_DISABLE_JIT", None)
+    probe = ("import sys, json, jackbox, numba; t = jackbox.simulate('drop', t_end=0.3); "
+             "loaded = 'numba.np.linalg' in sys.modules; "
+             "f = numba.njit(lambda a: a.sum() + a.dot(a))(__import__('numpy').arange(3.0)); "
+             "print(json.dumps([t.meta['kernel']['cache'], loaded, t.q[-1].tolist(), float(f)]))")
+    runs = [json.loads(subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True,
+                                      check=True).stdout) for _ in range(2)]
+    assert [r[0] for r in runs] == ["miss", "hit"]
+    assert runs[0][1] and not runs[1][1]       # compiled: the registries; loaded: none of them
+    assert runs[1][2] == runs[0][2]            # the same machine code, the same numbers
+    assert runs[1][3] == runs[0][3] == 8.0     # a compile after a registry-free load still works
+
+
 def drop_of_its_own() -> str:
     """drop's text with a force that is a parameter set to 0: the same motion, a structure of its own."""
     text = jackbox.builtin_scenes()["drop"].read_text()

@@ -10,6 +10,7 @@ own files get the same manifest check (loader.compile_kernel).
 from __future__ import annotations
 
 import errno
+import json
 import os
 import shutil
 import warnings
@@ -40,6 +41,7 @@ def _forget(monkeypatch):
         monkeypatch.setattr(loader, table, {})
     monkeypatch.setattr(engine.cache, "_folders", {})
     monkeypatch.setattr(loader, "_verified", set())
+    loader._kept_parts.cache_clear()
 
 
 def run(scene="drop"):
@@ -111,6 +113,19 @@ def test_a_damaged_numba_cache_file_is_compiled_again(fresh_cache, monkeypatch, 
         warnings.simplefilter("always")
         again = run()
     assert cache_warnings(record) == [] and again.meta["kernel"]["cache"] == "hit"
+
+
+@pytest.mark.parametrize("damage", ["garbage", "parts missing"])
+def test_a_damaged_file_of_binding_parts_is_made_again_without_a_word(fresh_cache, monkeypatch, damage):
+    before = loader.binding_parts(Path(loader.ensure_model(jackbox.load_scene("drop"))).read_text())
+    (kept,) = (fresh_cache / "kernels").glob("parts_*.json")
+    kept.write_text("{not json" if damage == "garbage" else '{"phi": "def phi(): pass"}')
+    _forget(monkeypatch)          # (a new process)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        after = loader.binding_parts(Path(loader.ensure_model(jackbox.load_scene("drop"))).read_text())
+    assert after == before and after["phi"].count("def phi(") == 1
+    assert json.loads(kept.read_text()) == before             # written again, whole
 
 
 def test_an_unwritable_cache_folder_is_avoided_with_one_warning(tmp_path, monkeypatch):
