@@ -200,10 +200,92 @@ def emit_module(model: Model, command: str) -> str:
         f"CONSTRAINT_NAMES = {tuple(model.constraint_names)!r}",
         f"E_SLOT = {[s.name for s in model.p].index('e')}",
         f"E_GROUND_SLOT = {[s.name for s in model.p].index('e_ground')}",
-        f"FUNCTIONS = {tuple(fn.name for fn in fs) + ('accel_time_s',) + TUPLE_HELPERS!r}",
+        f"FUNCTIONS = {tuple(fn.name for fn in fs) + ('accel_time_s', 'contact_rows') + TUPLE_HELPERS!r}",
     ]
+    bodies.append(_contact_rows(model, inputs, names))
     bodies += _tuple_helpers(len(model.q), len(model.p))
     return seal("\n".join(header) + "\n" + "".join("\n\n" + body for body in bodies))
+
+
+def _contact_rows(model: Model, inputs, names) -> str:
+    """``contact_rows(t, q, qd, p, rows, m, out)``: only the rows of the contacts asked for.
+
+    For each contact ``k`` of ``rows[:m]``, ``out[k, :n]`` is row k of
+    ``phi_q``, ``out[k, n]`` its ``gap_bias``, ``out[k, n + 1]`` its gap and
+    ``out[k, n + 2]`` its rate. A step with held contacts needs these rows of a
+    few contacts at every stage: this gives them from one call, with each
+    angle's sine and cosine computed once, where ``phi_q``, ``gap_bias``,
+    ``phi`` and ``gap_rate`` compute every row, each with its own sines.
+
+    Each family of contacts (:class:`~codegen.model.ContactFamily`: jack points
+    against the walls, box corners against the ground) has its gap written
+    once, in the symbols of its geometry; one ``cse`` runs over the families'
+    rows, and its terms that do not depend on a contact's geometry (the
+    bodies' poses, their sines and cosines) are computed once per call,
+    before the loop over the contacts. A contact's geometry is read from
+    tuples by its index (its point, its wall), so the body of each family is
+    emitted once, not once per contact.
+    """
+    n = len(model.q)
+    t, q, qd = model.t, model.q, model.qd
+    outputs, spans = [], []
+    for family in model.families:
+        gap = family.gap
+        jac = [sp.diff(gap, x) for x in q]
+        rate = sum((j * v for j, v in zip(jac, qd)), sp.Integer(0)) + (sp.diff(gap, t) if model.box_motion is not None
+                                                                         else 0)
+        bias = sum((sp.diff(rate, x) * v for x, v in zip(q, qd)), sp.Integer(0)) + (
+            sp.diff(rate, t) if model.box_motion is not None else 0)
+        spans.append((len(outputs), len(outputs) + n + 3))
+        outputs += jac + [bias, gap, rate]
+    replacements, outs = sp.cse(outputs, symbols=sp.numbered_symbols("_x", real=True), order="canonical")
+    geometry = {sym for family in model.families for sym in family.symbols}
+    local = {sym: "_" + sym.name[len("contact_"):].lower() for sym in geometry}
+    # the terms of a contact's geometry (transitively) go inside the loop; the others before it
+    per_contact: set[sp.Symbol] = set()
+    for sym, rhs in replacements:
+        if rhs.free_symbols & (geometry | per_contact):
+            per_contact.add(sym)
+    printer = KernelPrinter(names | local | {sym: sym.name for sym, _ in replacements})
+    position = {sym: i for i, (sym, _) in enumerate(replacements)}
+    needed = _needed(outs, replacements, position)
+    shared = [(sym, rhs) for sym, rhs in needed if sym not in per_contact]
+    values = [v for family in model.families for row in family.values for v in row]
+    used = set().union(*(e.free_symbols for e in outs), *(rhs.free_symbols for _, rhs in needed),
+                       *(v.free_symbols for v in values))
+    lines = ["def contact_rows(t, q, qd, p, rows, m, out):",
+             f'    """The rows of the m contacts rows[:m]: out[k, :{n}] phi_q[k], out[k, {n}] gap_bias[k], '
+             f'out[k, {n + 1}] phi[k], out[k, {n + 2}] gap_rate[k]."""',
+             "    # Unpack inputs"]
+    for arg in ("t", "q", "qd", "p"):
+        for sym, (name, slot) in inputs[arg].items():
+            if sym in used and slot:
+                lines.append(f"    {name} = {slot}")
+    lines.append("    # Each contact's geometry, by its index in its family")
+    for family in model.families:
+        for j, sym in enumerate(family.symbols):
+            entries = [repr(float(v[j])) if v[j].is_Number else printer.doprint(v[j]) for v in family.values]
+            lines.append(f"    {local[sym]}s = ({', '.join(entries)},)")
+    lines.append(f"    # Terms shared by every contact ({len(shared)})")
+    lines += [f"    {printer.doprint(sym)} = {printer.doprint(rhs)}" for sym, rhs in shared]
+    lines += ["    for i in range(m):", "        k = rows[i]"]
+    first, branches = 0, len(model.families) > 1
+    pad = " " * (12 if branches else 8)
+    for f, (family, (lo, hi)) in enumerate(zip(model.families, spans)):
+        if branches:
+            last = f == len(model.families) - 1
+            lines.append("        else:" if last else f"        {'elif' if f else 'if'} k < {first + len(family.values)}:")
+        lines.append(f"{pad}c = k - {first}" if first else f"{pad}c = k")
+        lines += [f"{pad}{local[sym]} = {local[sym]}s[c]" for sym in family.symbols]
+        terms = [(sym, rhs) for sym, rhs in _needed(outs[lo:hi], replacements, position) if sym in per_contact]
+        lines.append(f"{pad}# Terms of the contact ({len(terms)})")
+        lines += [f"{pad}{printer.doprint(sym)} = {printer.doprint(rhs)}" for sym, rhs in terms]
+        lines += [f"{pad}out[k, {i}] = {_number(printer, e)}" for i, e in enumerate(outs[lo:hi])]
+        first += len(family.values)
+    ops = sum(sp.count_ops(rhs) for _, rhs in needed) + sum(sp.count_ops(e) for e in outs)
+    lines.append(f"    # Total ops: {ops}")
+    lines.append("    return")
+    return "\n".join(lines) + "\n"
 
 
 #: Tuple arithmetic of length N_DOF emitted with every model (no sympy involved), and the

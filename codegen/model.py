@@ -48,6 +48,34 @@ class CodegenError(Exception):
 
 
 @dataclass
+class ContactFamily:
+    """Contacts of one kind, each a gap of the same form with its own geometry.
+
+    ``gap`` is written once in terms of ``symbols`` (a jack point in the jack's
+    frame and the inner normal of a wall in the box's frame; or a box corner's
+    signs against the ground); ``values`` has, for each contact of the family
+    in the order of ``phi``, what those symbols stand for (numbers, or
+    parameter slots: a polygon's vertices). ``phi``'s rows are this gap with
+    each contact's values put in, and the generated ``contact_rows`` computes
+    any contact's row from it.
+    """
+
+    symbols: tuple[sp.Symbol, ...]
+    values: list[tuple[sp.Expr, ...]]
+    gap: sp.Expr
+
+    def rows(self) -> list[sp.Expr]:
+        """The gap of each contact of the family."""
+        return [self.gap.subs(dict(zip(self.symbols, v)), simultaneous=True) for v in self.values]
+
+
+#: the symbols of a wall contact: the jack point (X, Y) in the jack's frame, the wall's inner normal (NX, NY)
+WALL_SYMBOLS = tuple(sp.Symbol(name, real=True) for name in ("contact_X", "contact_Y", "contact_NX", "contact_NY"))
+#: the symbols of a ground contact: the signs (SX, SY) of a box corner
+GROUND_SYMBOLS = tuple(sp.Symbol(name, real=True) for name in ("contact_SX", "contact_SY"))
+
+
+@dataclass
 class Model:
     """The symbolic model of one spec: inputs (symbols) and outputs (expressions)."""
 
@@ -68,6 +96,7 @@ class Model:
     box_motion: sp.Matrix | None  #: (6,) pose and rates of a prescribed box
     constraint_names: tuple[str, ...]
     n_wall_contacts: int
+    families: tuple[ContactFamily, ...] = ()   #: the walls', then the ground's (the rows of phi, in order)
 
     @property
     def mass_is_constant_diagonal(self) -> bool:
@@ -194,13 +223,20 @@ def derive(spec: ModelSpec) -> Model:
         a = P["a_jack"]
         signs = [(1, 0), (0, 1), (-1, 0), (0, -1)] if spec.shape == "cross" else CORNER_SIGNS
         points = [(int(sx) * a, int(sy) * a) for sx, sy in signs]
-    local = [g_bj * sp.Matrix([x, y, 1]) for x, y in points]
-    rows = [P["L"] - (int(nx) * pt[0] + int(ny) * pt[1]) for nx, ny in WALL_NORMALS for pt in local]
-    n_wall = len(rows)
+    # Each kind of contact's gap is written once, in the symbols of its geometry.
+    X, Y, NX, NY = WALL_SYMBOLS
+    local = g_bj * sp.Matrix([X, Y, 1])
+    families = [ContactFamily(WALL_SYMBOLS, [(x, y, sp.Integer(int(nx)), sp.Integer(int(ny)))
+                                             for nx, ny in WALL_NORMALS for x, y in points],
+                              P["L"] - (NX * local[0] + NY * local[1]))]
     if spec.ground:
+        SX, SY = GROUND_SYMBOLS
         h = P["L"] + P["w_box"]
-        for sx, sy in CORNER_SIGNS:
-            rows.append((g_wb * sp.Matrix([int(sx) * h, int(sy) * h, 1]))[1])
+        families.append(ContactFamily(GROUND_SYMBOLS, [(sp.Integer(int(sx)), sp.Integer(int(sy)))
+                                                       for sx, sy in CORNER_SIGNS],
+                                      (g_wb * sp.Matrix([SX * h, SY * h, 1]))[1]))
+    rows = [row for family in families for row in family.rows()]
+    n_wall = len(families[0].values)
     phi = sp.Matrix(rows)
     phi_q = phi.jacobian(q)
     phi_t = phi.diff(t) if spec.prescribed else None
@@ -214,5 +250,5 @@ def derive(spec: ModelSpec) -> Model:
     return Model(
         name=spec.name, structure=spec.structure(), t=t, q=q, qd=qd, p=p,
         M=M, f=f, phi=phi, phi_q=phi_q, phi_t=phi_t, gap_rate=gap_rate, gap_bias=gap_bias, energy=T + V, box_motion=box_motion,
-        constraint_names=spec.constraint_names, n_wall_contacts=n_wall,
+        constraint_names=spec.constraint_names, n_wall_contacts=n_wall, families=tuple(families),
     )

@@ -64,7 +64,6 @@ LANES_STUB = ("def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):\n"
 GENERATED_DIR = Path(__file__).resolve().parent.parent / "generated"
 #: functions a model may lack; the kernel only calls them when the model has them
 OPTIONAL = {
-    "phi_t": "def phi_t(t, q, p, out):\n    pass\n",
     "box_motion": "def box_motion(t, p, out):\n    pass\n",
 }
 _loaded: dict[str, ModuleType] = {}

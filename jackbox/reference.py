@@ -50,6 +50,7 @@ class Functions:
     phi_t: Callable | None  #: (t, q, p) -> (C,)
     energy: Callable        #: (t, q, qd, p) -> float
     box_motion: Callable | None  #: (t, p) -> (6,)
+    gap_bias: Callable | None = None  #: (t, q, qd, p) -> (C,): d^2 phi/dt^2 at qdd = 0 (tests of the compiler)
 
     def accel(self, t, q, qd, p):
         return np.linalg.solve(self.mass_matrix(p), self.forcing(t, q, qd, p))
@@ -84,6 +85,7 @@ def _lambdify(scene: Scene) -> Functions:
         phi_t=lam([t, q, p], m.phi_t, (C,)) if m.phi_t is not None else None,
         energy=lam([t, q, qd, p], m.energy, ()),
         box_motion=lam([t, p], m.box_motion, (6,)) if m.box_motion is not None else None,
+        gap_bias=lam([t, q, qd, p], m.gap_bias, (C,)),
     )
 
 

@@ -86,7 +86,7 @@ def test_changed_hot_path_is_recompiled(fresh_cache, tmp_path, monkeypatch):
     assert not loader.load_kernel(loader.ensure_model(jackbox.load_scene("drop"))).cache_hit
     assert np.abs(after.q[-1] - before.q[-1]).max() > 1e-3   # the edit shows: not the old code
     # the hot path's functions were compiled again; the gaps, which do not reach it, were not
-    assert [len(list((fresh_cache / "kernels").glob(f"{name}_*.py"))) for name in ("flight", "phi_q")] == [2, 1]
+    assert [len(list((fresh_cache / "kernels").glob(f"{name}_*.py"))) for name in ("flight", "contact_rows")] == [2, 1]
 
 
 def test_changed_engine_source_gets_a_cache_folder_of_its_own(tmp_path):

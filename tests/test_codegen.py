@@ -83,6 +83,29 @@ def test_generated_functions_match_lambdified_twins(name, all_scenes):
                                        err_msg=f"{name}.{what} at t={t}, q={q}, qd={qd}")
 
 
+@pytest.mark.parametrize("name", ["shaken", "drop", "hand", "float"])
+def test_contact_rows_are_the_lambdified_rows_of_the_contacts_asked_for(name, all_scenes):
+    # contact_rows writes the gap form of each family once (jack point against a wall, box
+    # corner against the ground) with the contact's geometry read by its index: each row must be
+    # that contact's row of phi_q, gap_bias, phi and gap_rate, and the rows not asked for untouched
+    scene = all_scenes[name]
+    gen = loader.load_kernel(loader.ensure_model(scene))
+    rows_of = gen.jit("contact_rows")
+    ref = reference.functions(scene)
+    n, C = gen.N_DOF, gen.N_CONTACT
+    rng = np.random.default_rng(zlib.crc32(name.encode()))
+    for t, q, qd, p in random_states(scene, 60, seed=zlib.crc32(name.encode()) + 1):
+        asked = rng.permutation(C)[:rng.integers(1, C + 1)]
+        out = np.full((C, n + 3), np.nan)
+        rows_of(t, q, qd, p, asked.astype(np.int64), len(asked), out)
+        rate = ref.phi_q(t, q, p) @ qd + (ref.phi_t(t, q, p) if ref.phi_t else 0.0)
+        want = np.column_stack([ref.phi_q(t, q, p), ref.gap_bias(t, q, qd, p), ref.phi(t, q, p), rate])
+        scale = max(1.0, float(np.abs(want).max()))
+        np.testing.assert_allclose(out[asked], want[asked], rtol=1e-12, atol=1e-12 * scale,
+                                   err_msg=f"{name} rows {asked} at t={t}, q={q}, qd={qd}")
+        assert np.isnan(np.delete(out, asked, axis=0)).all()
+
+
 def _call(fn, shape, *args):
     out = np.full(shape, np.nan)
     fn(*args, out)

@@ -971,13 +971,15 @@ def test_a_weightless_spinning_box_finishes_every_member_without_a_solver_warnin
     (benchmarks/contact.py's study): every run stalled before the fallback. Every member
     finishes, and none needs a solver that gives up: the fallback's projection that keeps
     the angular momentum once made the position LCP singular and warned in most members.
+    64 members: since the held contacts' rows come from one generic formula (contact_rows)
+    the exact method resolves more of them itself, and 16 no longer reached the fallback.
     """
     from jackbox.ensemble import ensemble
 
     scene = jackbox.load_scene(base("float"), {
         "box.wall_thickness": 0.1, "box.mass": 1000.0, "jack.mass": 0.01, "jack.half_size": 0.1,
         "restitution": 0.5, "initial.q": [0, 0, 0, -0.5, 0, 0.3], "initial.qd": [0, 0, 10, 0, -5, 10]})
-    ens = ensemble(scene, 16, perturb={"theta_jack": 0.5}, t_end=2.0)
+    ens = ensemble(scene, 64, perturb={"theta_jack": 0.5}, t_end=2.0)
     assert ens.completed.all(), ens.summary()
     assert (ens.fallback > 0).any()          # the case exercises the fallback
     assert ens.warnings.sum() == 0, ens.warnings

@@ -234,8 +234,8 @@ def start(names, loops=(), lazy: bool = False, busy: float = 0.0) -> list[str]:
 
 #: seconds each model function takes to compile alone, as its own binding part (2 cores; measured by
 #: benchmarks/compile_parts.py --scene drop, after Numba's first compile): only to share them out
-PART_COST = {"inverse_mass": 0.1, "accel": 0.05, "phi": 0.2, "phi_q": 0.6, "phi_t": 0.03, "gap_rate": 0.3,
-             "gap_bias": 0.45, "energy": 0.1, "box_motion": 0.03, "clearance": 0.25, "flight": 1.4,
+PART_COST = {"inverse_mass": 0.1, "accel": 0.05, "phi": 0.2, "gap_rate": 0.3, "contact_rows": 0.5,
+             "energy": 0.1, "box_motion": 0.03, "clearance": 0.25, "flight": 1.4,
              "lanes": 0.05}
 #: what Numba's first compile in a process costs beyond the function itself (see warm_binder)
 FIRST_COMPILE = 0.6

@@ -71,7 +71,6 @@ def moreau_step(model, t, h, q, qd, p, tol, ws):
     for k in range(C):
         member[k] = g[k] + 0.5 * h * min(vf[k], v0[k], 0.0) < tol[T_GAP]
     jac, A, winv = ws.jac, ws.A, ws.n[WINV]
-    model.phi_q(tm, qm, p, jac)
     model.inverse_mass(p, winv)
     b, lam = ws.c[RHS], ws.c[LAM]
     na = 0
@@ -94,6 +93,7 @@ def moreau_step(model, t, h, q, qd, p, tol, ws):
             # impulses acting at the midpoint they then do no work, where holding it would add energy.
             slow = tol[T_VREST] + 2.0 * abs(vf[k] - v0[k])
             b[i] = vf[k] + (v0[k] if v0[k] > 0.0 else e * v0[k] if v0[k] < -slow else 0.0)
+        model.contact_rows(tm, qm, qd, p, rows, np.int64(na), jac)
         contact_matrix(jac, winv, rows, np.int64(na), A)
         solve_lcp(A, b, np.int64(na), lam, ws)
         for d in range(n):
@@ -213,7 +213,7 @@ def project_gaps(model, t, q, qd, p, tol, ws):
             if member[k]:
                 rows[na] = k
                 na += 1
-        model.phi_q(t, q, p, jac)
+        model.contact_rows(t, q, qd, p, rows, np.int64(na), jac)
         b, x = ws.c[RHS], ws.c[LAM]
         for i in range(na):
             b[i] = g[rows[i]] + level

@@ -43,7 +43,7 @@ from . import cache
 from .loop import exact_steps, record
 from .members import (LOG_SIZE, TALLY, TALLY_FIRST, TALLY_IMPULSES, TALLY_WARNINGS, copy_to, fallback_time, grown,
                       is_free, run_segment, start_member)
-from .records import DONE, MODE_SLOTS, SC, SK, SN, SIGNATURES, Stages, borrow, keep
+from .records import DONE, MODE_SLOTS, ROW_EXTRA, SC, SK, SN, SIGNATURES, Stages, borrow, keep
 
 #: members per thread block
 BLOCK = 64
@@ -317,7 +317,7 @@ def _model():
 
 @_cuda.jit(device=True, inline="always")
 def _stages():
-    ws = _Scratch(_cuda.local.array((9, _N), _f8), _cuda.local.array((_C, _N), _f8),
+    ws = _Scratch(_cuda.local.array((9, _N), _f8), _cuda.local.array((_C, _N + {ROW_EXTRA}), _f8),
                   _cuda.local.array(({SC}, _C), _f8), _cuda.local.array(({SN}, _N), _f8),
                   _cuda.local.array(({SK}, _C), _i8), _cuda.local.array(_NR, _i8),
                   _cuda.local.array((_C, _C), _f8), _cuda.local.array((_C, _C), _f8),
@@ -433,6 +433,7 @@ def kernel_text(model_text: str, flight_text: str, constants: dict) -> str:
     functions = ", ".join(name for name in SIGNATURES if name != "lanes")
     filled = KERNELS
     for key, value in {**constants, "FUNCTIONS": functions, "SC": SC, "SN": SN, "SK": SK, "MODE_SLOTS": MODE_SLOTS,
+                       "ROW_EXTRA": ROW_EXTRA,
                        "LOG_SIZE": LOG_SIZE, "TALLY": TALLY, "FINISHED": FINISHED, "NEEDS_CARE": NEEDS_CARE}.items():
         filled = filled.replace("{" + key + "}", str(value))
     return model_text + "\n\n" + flight_text + filled

@@ -21,13 +21,16 @@ import math
 import numpy as np
 from numba import njit
 
-from .records import FLAGS, HIT, IDX, LAM, LR, LX, MAX_ENUMERATED, R, RHS, RINV, VT, WARN_LCP, WINV, Y
+from .records import FLAGS, HIT, IDX, LAM, LR, LX, MAX_ENUMERATED, R, RHS, RINV, ROW_RATE, WARN_LCP, WINV, Y
 
 
 @njit(cache=True, no_cpython_wrapper=True, inline="always")
 def contact_matrix(jac, winv, rows, m, A):
-    """``A = J_R M^-1 J_R^T`` for the m contacts listed in rows (M diagonal: winv = diag M^-1)."""
-    n = jac.shape[1]
+    """``A = J_R M^-1 J_R^T`` for the m contacts listed in rows (M diagonal: winv = diag M^-1).
+
+    jac: the contacts' rows (:data:`~.records.ROW_BIAS`): their first n_dof entries.
+    """
+    n = winv.shape[0]
     for i in range(m):
         for j in range(i, m):
             s = 0.0
@@ -270,21 +273,14 @@ def resolve_impacts(model, t, q, qd, p, gap, active_tol, ws, log, n_imp):
     if m == 0:
         return n_imp
     jac = ws.jac
-    model.phi_q(t, q, p, jac)
-    v_t = ws.c[VT]
-    for k in range(C):
-        v_t[k] = 0.0
-    if model.prescribed:
-        model.phi_t(t, q, p, v_t)
+    model.contact_rows(t, q, qd, p, rows, np.int64(m), jac)
     winv = ws.n[WINV]
     model.inverse_mass(p, winv)
     b = ws.c[RHS]
     approaching = False
     for i in range(m):
         k = rows[i]
-        s = v_t[k]
-        for j in range(n):
-            s += jac[k, j] * qd[j]
+        s = jac[k, n + ROW_RATE]
         e = p[model.e_slot] if k < model.n_wall else p[model.e_ground_slot]
         b[i] = s + e * min(s, 0.0)
         if s < 0.0:

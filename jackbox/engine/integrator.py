@@ -11,7 +11,7 @@ give the same numbers bit for bit (tests/test_engine.py checks it).
 from numba import njit
 
 from .modes import held_accel
-from .records import BIAS, LAM, LS, RHS, RIDX, RINV, WINV
+from .records import LAM, LS, RHS, RIDX, RINV, WINV
 
 #: the classical RK4 tableau (diagonal): stage s is evaluated at t + NODES[s] dt, at the start
 #: state moved NODES[s] dt along stage s-1's slope
@@ -37,11 +37,11 @@ def rk4(model, t, q, qd, dt, p, q_out, qd_out, m, ws):
     if m > 0:
         model.inverse_mass(p, winv)
     rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, ws.work, ws.c[LS:LS + 4], ws.k[RIDX], ws.jac, winv,
-             ws.c[BIAS], ws.A, ws.lu, ws.c[RINV], ws.c[RHS], ws.c[LAM])
+             ws.A, ws.lu, ws.c[RINV], ws.c[RHS], ws.c[LAM])
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, bias, A, L, rinv, y, lam):
+def rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam):
     """:func:`rk4` on the arrays themselves (``winv`` filled where m > 0), like :func:`~.modes.held_accel`.
 
     w: (9, n) work rows; ls: (4, C) the held forces at each stage.
@@ -63,7 +63,7 @@ def rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, b
         if m == 0:
             model.accel(t + h, qs, v[s], p, a[s])
         else:
-            held_accel(model, t + h, qs, v[s], p, m, a[s], ridx, jac, winv, bias, A, L, rinv, y, lam)
+            held_accel(model, t + h, qs, v[s], p, m, a[s], ridx, jac, winv, A, L, rinv, y, lam)
             for i in range(m):
                 ls[s, i] = lam[i]
     h = dt / SCALE

@@ -237,7 +237,7 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws):
     """
     n, C = model.n_dof, model.n_contact
     ridx, jac, A, L, w = ws.k[RIDX], ws.jac, ws.A, ws.lu, ws.work
-    winv, bias, g, rinv, y, lam = ws.n[WINV], ws.c[BIAS], ws.c[GS], ws.c[RINV], ws.c[RHS], ws.c[LAM]
+    winv, rinv, y, lam = ws.n[WINV], ws.c[RINV], ws.c[RHS], ws.c[LAM]
     ls = ws.c[LS:LS + 4]
     qb, qdb = ws.n[QB], ws.n[QDB]
     ga, gb = ws.c[GA], ws.c[GB]
@@ -249,7 +249,7 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws):
     while i < i_stop:
         ta = t0 + i * dt
         tb = t0 + (i + 1) * dt
-        rk4_rows(model, ta, q, qd, tb - ta, p, qb, qdb, m, w, ls, ridx, jac, winv, bias, A, L, rinv, y, lam)
+        rk4_rows(model, ta, q, qd, tb - ta, p, qb, qdb, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam)
         model.phi(tb, qb, p, gb)
         for j in range(m):
             floor = -arest / A[j, j]
@@ -266,7 +266,7 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws):
         for d in range(n):
             q[d] = qb[d]
             qd[d] = qdb[d]
-        project_rows(model, tb, q, qd, p, m, half, np.int64(1), ridx, jac, winv, g, A, L, rinv, y, lam)
+        project_rows(model, tb, q, qd, p, m, half, np.int64(1), ridx, jac, winv, A, L, rinv, y, lam)
         model.phi(tb, q, p, ga)
         i += 1
     return i, 0

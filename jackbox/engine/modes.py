@@ -24,8 +24,8 @@ import numpy as np
 from numba import njit
 
 from .impact import contact_matrix, factor_rows, solve_lcp, solve_rows
-from .records import (ACC, BIAS, CAND, FLAGS, GS, HIT, IMPULSE, LAM, NEAR, NEWREST, RELEASE, REST, RHS,
-                      RIDX, RINV, T_AREST, T_EVENT, T_GAP, T_VREST, VB, WINV)
+from .records import (ACC, CAND, FLAGS, GS, HIT, IMPULSE, LAM, NEAR, NEWREST, RELEASE, REST, RHS, RIDX, RINV,
+                      ROW_BIAS, ROW_GAP, ROW_RATE, T_AREST, T_EVENT, T_GAP, T_VREST, VB, WINV)
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -79,28 +79,28 @@ def contact_accel(model, t, q, qd, p, m, a, ws):
         return
     winv = ws.n[WINV]
     model.inverse_mass(p, winv)
-    held_accel(model, t, q, qd, p, m, a, ws.k[RIDX], ws.jac, winv, ws.c[BIAS], ws.A, ws.lu, ws.c[RINV], ws.c[RHS],
-               ws.c[LAM])
+    held_accel(model, t, q, qd, p, m, a, ws.k[RIDX], ws.jac, winv, ws.A, ws.lu, ws.c[RINV], ws.c[RHS], ws.c[LAM])
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def held_accel(model, t, q, qd, p, m, a, ridx, jac, winv, bias, A, L, rinv, y, lam):
+def held_accel(model, t, q, qd, p, m, a, ridx, jac, winv, A, L, rinv, y, lam):
     """:func:`contact_accel` on the arrays themselves, ``winv = diag(M^-1)`` already filled.
 
     The held step's own coding (called by :func:`jackbox.engine.integrator.rk4_rows`):
     a call that passed the scratch and model records would pass each of
-    their fields, some hundred and fifty words, about 100 ns a call. y: the
-    right-hand side, then the forward substitution's unknowns; lam: the
-    forces; L, rinv: the factorization (:func:`~.impact.factor_rows`).
+    their fields, some hundred and fifty words, about 100 ns a call. The
+    held contacts' rows come from one call of the model's ``contact_rows``
+    (their Jacobian rows and biases only, each angle's sine and cosine once).
+    y: the right-hand side, then the forward substitution's unknowns; lam:
+    the forces; L, rinv: the factorization (:func:`~.impact.factor_rows`).
     """
     model.accel(t, q, qd, p, a)
-    model.phi_q(t, q, p, jac)
-    model.gap_bias(t, q, qd, p, bias)
+    model.contact_rows(t, q, qd, p, ridx, m, jac)
     n = model.n_dof
     contact_matrix(jac, winv, ridx, m, A)
     for i in range(m):
         k = ridx[i]
-        s = bias[k]
+        s = jac[k, n + ROW_BIAS]
         for d in range(n):
             s += jac[k, d] * a[d]
         y[i] = -s
@@ -123,26 +123,30 @@ def project_rest(model, t, q, qd, p, m, level, passes, ws):
     """
     winv = ws.n[WINV]
     model.inverse_mass(p, winv)
-    project_rows(model, t, q, qd, p, m, level, passes, ws.k[RIDX], ws.jac, winv, ws.c[GS], ws.A, ws.lu, ws.c[RINV],
-                 ws.c[RHS], ws.c[LAM])
+    project_rows(model, t, q, qd, p, m, level, passes, ws.k[RIDX], ws.jac, winv, ws.A, ws.lu, ws.c[RINV], ws.c[RHS],
+                 ws.c[LAM])
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def project_rows(model, t, q, qd, p, m, level, passes, ridx, jac, winv, g, A, L, rinv, y, x):
-    """:func:`project_rest` on the arrays themselves (``winv`` filled), like :func:`held_accel`."""
+def project_rows(model, t, q, qd, p, m, level, passes, ridx, jac, winv, A, L, rinv, y, x):
+    """:func:`project_rest` on the arrays themselves (``winv`` filled), like :func:`held_accel`.
+
+    Each pass reads the held rows (gaps and Jacobian) from one call of the
+    model's ``contact_rows``; the rates are read at the corrected coordinates
+    by one more, and projected with the last pass's factorization.
+    """
     n = model.n_dof
     for _ in range(passes):
-        model.phi(t, q, p, g)
-        model.phi_q(t, q, p, jac)
+        model.contact_rows(t, q, qd, p, ridx, m, jac)
         contact_matrix(jac, winv, ridx, m, A)
         factor_rows(A, m, L, rinv)
         for i in range(m):
-            y[i] = -(g[ridx[i]] + level)
+            y[i] = -(jac[ridx[i], n + ROW_GAP] + level)
         solve_rows(y, m, L, rinv, y, x)
         add_response(jac, winv, ridx, m, x, n, q)
-    model.gap_rate(t, q, qd, p, g)
+    model.contact_rows(t, q, qd, p, ridx, m, jac)
     for i in range(m):
-        y[i] = -g[ridx[i]]
+        y[i] = -jac[ridx[i], n + ROW_RATE]
     solve_rows(y, m, L, rinv, y, x)
     add_response(jac, winv, ridx, m, x, n, qd)
 
@@ -155,6 +159,23 @@ def log_event(t, k, kind, log, n_ev):
         log.k[n_ev] = k
         log.kind[n_ev] = kind
     return n_ev + 1
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def near_rows(model, t, q, qd, p, near, m, jac, v):
+    """The rows of the m contacts ``near[:m]`` into jac, and their rates into v.
+
+    The impulses' right-hand sides take the rates from the same rows as the
+    impulses' directions: an elastic impact then returns the energy it takes
+    to round-off (rates from ``gap_rate``, the same value written otherwise,
+    differ by round-off of the rates' large terms, which a fast turning jack
+    makes large).
+    """
+    model.contact_rows(t, q, qd, p, near, np.int64(m), jac)
+    n = model.n_dof
+    for i in range(m):
+        k = near[i]
+        v[k] = jac[k, n + ROW_RATE]
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -179,10 +200,9 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
     """
     n, C = model.n_dof, model.n_contact
     jac, A = ws.jac, ws.A
-    g, v, bias = ws.c[GS], ws.c[VB], ws.c[BIAS]
+    g, v = ws.c[GS], ws.c[VB]
     model.phi(t, q, p, g)
     model.gap_rate(t, q, qd, p, v)
-    model.phi_q(t, q, p, jac)
     winv = ws.n[WINV]
     model.inverse_mass(p, winv)
     near = ws.k[NEAR]
@@ -198,6 +218,7 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
             if rest[k]:
                 rest[k] = 0
         return n_ev, 0
+    near_rows(model, t, q, qd, p, near, m, jac, v)
     vrest = tol[T_VREST]
     tiny = 1e-3 * tol[T_VREST]  # normal speeds below this are round-off
     # The impact: contacts that approach or are closed and still. A receding
@@ -229,7 +250,7 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
         for i in range(nh):
             if lam[i] * A[i, i] > tiny:
                 n_ev = log_event(t, hit[i], np.int64(IMPULSE), log, n_ev)
-        model.gap_rate(t, q, qd, p, v)
+        near_rows(model, t, q, qd, p, near, m, jac, v)
     # Contacts closed and (now) at rest: which of them carry a force?
     cand = ws.k[CAND]
     c = 0
@@ -243,12 +264,11 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
     for k in range(C):
         newrest[k] = 0
     if c > 0:
-        model.gap_bias(t, q, qd, p, bias)
         contact_matrix(jac, winv, cand, np.int64(c), A)
         w0, force = ws.c[RHS], ws.c[LAM]
         for i in range(c):
             k = cand[i]
-            s = bias[k]
+            s = jac[k, n + ROW_BIAS]
             for d in range(n):
                 s += jac[k, d] * a[d]
             w0[i] = s

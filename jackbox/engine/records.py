@@ -88,10 +88,10 @@ SIGNATURES = {
     "inverse_mass": types.void(V1, V1),                       # (p, out)
     "accel": types.void(F8, V1, V1, V1, V1),                  # (t, q, qd, p, out)
     "phi": types.void(F8, V1, V1, V1),                        # (t, q, p, out)
-    "phi_q": types.void(F8, V1, V1, V2),                      # (t, q, p, out)
-    "phi_t": types.void(F8, V1, V1, V1),                      # (t, q, p, out)
     "gap_rate": types.void(F8, V1, V1, V1, V1),               # (t, q, qd, p, out)
-    "gap_bias": types.void(F8, V1, V1, V1, V1),               # (t, q, qd, p, out)
+    # the rows of some contacts: (t, q, qd, p, rows, m, out), out[k] = (phi_q[k], gap_bias[k], phi[k],
+    # gap_rate[k]) for each k of rows[:m] (see ROW_BIAS)
+    "contact_rows": types.void(F8, V1, V1, V1, I1, I8, V2),
     "energy": F8(F8, V1, V1, V1),                             # (t, q, qd, p)
     "box_motion": types.void(F8, V1, V1),                     # (t, p, out)
     # the hot path (jackbox/engine/flight.py, compiled with the model)
@@ -145,6 +145,11 @@ SetupType = types.NamedTuple([V1, V1, V1, V1, I1, V1, I8, I1, I1, V1, V1, I8, I8
 # ---------------------------------------------------------------------------
 # scratch
 
+#: columns of a contact's row (Scratch.jac, filled by a model's contact_rows) after its n_dof entries of
+#: phi_q: its gap_bias at n_dof + ROW_BIAS, its gap at n_dof + ROW_GAP, its rate at n_dof + ROW_RATE
+ROW_BIAS, ROW_GAP, ROW_RATE = 0, 1, 2
+ROW_EXTRA = 3
+
 # rows of Scratch.c, (SC, n_contact) floats: gaps at a step's ends and at a trial
 # time, normal speeds at both ends, gap biases, a right-hand side and contact
 # forces, phi_t, the LCP's right-hand side and unknowns, the dense solver's
@@ -175,7 +180,7 @@ def scratch(model):
     n, C = model.n_dof, model.n_contact
     return Scratch(
         np.zeros((9, n)),           # RK4: a stage's coordinates, the stages' rates and accelerations
-        np.zeros((C, n)),           # phi_q
+        np.zeros((C, n + ROW_EXTRA)),  # contact rows: phi_q, gap_bias, gap, rate (ROW_*)
         np.zeros((SC, C)),          # rows per contact
         np.zeros((SN, n)),          # rows per coordinate
         np.zeros((SK, C), np.int64),  # index lists
