@@ -38,10 +38,10 @@ from numba import njit
 from .impact import resolve_impacts
 from .integrator import rk4_rows
 from .modes import log_event, project_rest, project_rows, rest_index
-from .records import (BIAS, DONE, EXACT_AT, FALLBACK, FLAGS, GA, GB, GS, HANDOFF, IMPACT_LOG_FULL, LAM, LS, MAX_EVENTS,
+from .records import (DONE, EXACT_AT, FALLBACK, FLAGS, GA, GB, HANDOFF, IMPACT_LOG_FULL, LAM, LS, MAX_EVENTS,
                       MISSING, MODE_AT, MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT, NEED_FALLBACK, NEED_HOLD,
                       NEED_RELEASE, NONFINITE, Q0, QB, QD0, QDB, QDS, QS, RELEASE, RHS, RIDX, RINV, SET_AT, STAGES_AT,
-                      T_AREST, T_EVENT, WARN_LCP, WARN_LOCATE, WARNING, WINV,
+                      T_AREST, T_EVENT, T_SPEED, WARN_LCP, WARN_LOCATE, WARNING, WINV,
                       ZENO_PASSES, ZENO_SPAN, Events, ExactType, ModelType, NaiveType, Samples, StagesType, borrow,
                       from_table, keep, scratch)
 from .gaps import step_reach
@@ -230,7 +230,11 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws):
     more than a held step's own solves. Stops at i_stop, or before a step
     whose forces might pull (any stage's force below the release floor),
     whose free contacts come within its reach, or whose end is not finite:
-    :func:`advance` takes that one. The gaps at the state reached are left in
+    :func:`advance` takes that one. The free contacts' gaps are computed only
+    where a bound on them (their smallest at the last look, lowered by each
+    step's band and by what each projection moved) says one could be near:
+    a contact resting on a floor with the others far from the walls takes
+    no gap row at all. The gaps at the state reached are left in
     ``ws.c[GA]``. Returns ``(i, trial)``: trial 1 when the step it stopped
     before is already integrated (``ws.n[QB]``, ``ws.n[QDB]``, its gaps in
     ``ws.c[GB]`` and its forces in ``ws.c[LS:]``), as :func:`advance` takes it.
@@ -246,30 +250,57 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws):
     arest = tol[T_AREST]
     model.inverse_mass(p, winv)
     model.phi(t0 + i * dt, q, p, ga)
+    fresh = True                 # whether ga holds the gaps at (t, q)
+    low = lowest_free(ga, rest, C)
     while i < i_stop:
         ta = t0 + i * dt
         tb = t0 + (i + 1) * dt
         rk4_rows(model, ta, q, qd, tb - ta, p, qb, qdb, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam)
-        model.phi(tb, qb, p, gb)
+        stop = False
         for j in range(m):
             floor = -arest / A[j, j]
             for s in range(4):
                 if not ls[s, j] >= floor:
-                    return i, 1
-        band = step_reach(qd, qdb, tb - ta, tol)
-        for k in range(C):
-            if not rest[k] and min(ga[k], gb[k]) + deep < band:
-                return i, 1
+                    stop = True
         for d in range(n):
             if not (math.isfinite(qb[d]) and math.isfinite(qdb[d])):
-                return i, 1
+                stop = True
+        band = step_reach(qd, qdb, tb - ta, tol)
+        looked = False
+        if stop or low - band + deep < band:
+            # some free gap may come within the step's reach: first_crossing's own near test, on the gaps
+            if not fresh:
+                model.phi(ta, q, p, ga)
+                fresh = True
+            model.phi(tb, qb, p, gb)
+            looked = True
+            for k in range(C):
+                if not rest[k] and min(ga[k], gb[k]) + deep < band:
+                    stop = True
+        if stop:
+            return i, 1
+        low = lowest_free(gb, rest, C) if looked else low - band    # (a bound on the free gaps at tb)
         for d in range(n):
             q[d] = qb[d]
             qd[d] = qdb[d]
         project_rows(model, tb, q, qd, p, m, half, np.int64(1), ridx, jac, winv, A, L, rinv, y, lam)
-        model.phi(tb, q, p, ga)
+        for d in range(n):       # what the projection moved any gap by, at most
+            low -= abs(q[d] - qb[d]) * tol[T_SPEED + d]
+        fresh = False
         i += 1
+    if not fresh:
+        model.phi(t0 + i * dt, q, p, ga)
     return i, 0
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def lowest_free(g, rest, C):
+    """The smallest of the gaps g of the contacts that are not held (inf if every one is)."""
+    low = math.inf
+    for k in range(C):
+        if not rest[k]:
+            low = min(low, g[k])
+    return low
 
 
 @njit(cache=True, no_cpython_wrapper=True)
