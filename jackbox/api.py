@@ -245,6 +245,8 @@ def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
     fallback = fallback_intervals(ev_t[ev_kind == K.FALLBACK], ev_k[ev_kind == K.FALLBACK], run.n_steps * run.dt)
     if exact:
         extra["fallback_seconds"] = float(np.sum(fallback[:, 1] - fallback[:, 0]))
+        entered = ev_k[(ev_kind == K.FALLBACK) & (ev_k >= 1)]
+        extra["fallback_reasons"] = [HANDOFF_REASONS.get(int(code), f"code {int(code)}") for code in entered]
         extra["solver_warnings"] = report_warnings(run, ev_t[ev_kind == K.WARNING], ev_k[ev_kind == K.WARNING])
     return finish(run, rec_t[:n_rec], rec_q[:n_rec], rec_qd[:n_rec], rec_e[:n_rec],
                   ev_t[hit].copy(), ev_k[hit].copy(), extra,
@@ -254,6 +256,11 @@ def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
 #: what each WARNING code of the engine means, for a user
 WARNINGS = {K.WARN_LCP: ("lcp", "an iterative contact solve stopped before it converged"),
             K.WARN_LOCATE: ("locate", "an event's time was not located to round-off")}
+
+
+#: why the exact method handed a stretch to the fallback (meta["fallback_reasons"], one per stretch)
+HANDOFF_REASONS = {K.HANDOFF_STUCK: "an event made no progress", K.HANDOFF_MODES: "too many contact mode changes",
+                   K.HANDOFF_ZENO: "Zeno in several contacts", K.HANDOFF_EVENTS: "too many events in one step"}
 
 
 def fallback_intervals(t, k, t_end: float) -> np.ndarray:

@@ -17,15 +17,15 @@ from numba import njit
 
 from .gaps import cubic_error, hermite, hermite_extrema, step_reach
 from .modes import accel, contact_accel
-from .records import (AF, FLAGS, GA, GB, GS, LAM, LAMA, LAMB, LEV, LR, LS, QB, QDB, QDS, QS, RIDX, T_AREST, T_EVENT, T_VREST, VA,
+from .records import (AF, FLAGS, GA, GAP_ROUNDOFF, GB, GS, LAM, LAMA, LAMB, LEV, LR, LS, QB, QDB, QDS, QS, RIDX, T_AREST, T_EVENT, T_VREST, VA,
                       VB, WARN_LOCATE)
 
+#: the deepest level (in T_EVENT below the held level) at which a free contact's event is looked for
+DEEPEST = 4.0
 # kinds of event function (passed as np.int64: a bare literal would make Numba
 # compile one specialisation per value)
 GAP_EVENT = 0           #: a gap plus its level (``ws.c[LEV]``) reaches zero
 FORCE_EVENT = 1         #: a persistent contact's force reaches zero
-#: a gap this fraction of T_EVENT above its level is at it (gaps of order L carry round-off of about 1e-16 L)
-GAP_ROUNDOFF = 1e-3
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -148,7 +148,10 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
     The level is -T_EVENT/2, where persistent contacts are held, except for a
     contact that starts the step at or below it without approaching (the
     contact update left it there, leaving or closed by round-off): its event is
-    a return to T_EVENT below that, so that it takes no event to leave.
+    a return to T_EVENT below where it starts (and at least T_EVENT below the
+    held level, at most DEEPEST T_EVENT), so that it takes no event to leave,
+    also from a little deeper (where a projection of the other contacts moved it
+    when they were let go).
 
     Uses the trial state at tb in ``ws.n[QB]``, ``ws.n[QDB]`` and its gaps
     ``ws.c[GB]``; the gaps at ta are ``ws.c[GA]``. On success the state just
@@ -175,7 +178,11 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
     model.gap_rate(tb, ws.n[QB], ws.n[QDB], p, vb)
     tiny = 1e-3 * tol[T_VREST]
     for k in range(C):
-        lev[k] = deep if ga[k] + half < 0.0 and va[k] >= -tiny else half
+        # (a contact the update left inside the band without approaching: its event is a
+        # return to T_EVENT below where it starts; at a fixed level one that starts below it,
+        # leaving, was a touch at the step's start that no update resolved)
+        lev[k] = (min(max(deep, tol[T_EVENT] - ga[k]), DEEPEST * tol[T_EVENT])
+                  if ga[k] + half < 0.0 and va[k] >= -tiny else half)
     ext = ws.ext
     # a dip whose cubic stays above zero by less than the cubic's own error is looked at (one
     # re-step to its bottom): a corner turning fast can dip below zero where its cubic does not

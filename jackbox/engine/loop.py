@@ -38,7 +38,8 @@ from numba import njit
 from .impact import resolve_impacts
 from .integrator import rk4_rows
 from .modes import log_event, project_rest, project_rows, rest_index
-from .records import (DONE, EXACT_AT, FALLBACK, FLAGS, GA, GB, HANDOFF, IMPACT_LOG_FULL, LAM, LS, MAX_EVENTS,
+from .records import (DONE, EXACT_AT, FALLBACK, FLAGS, GA, GB, HANDOFF, HANDOFF_AT, HANDOFF_EVENTS,
+                      HANDOFF_MODES, HANDOFF_STUCK, HANDOFF_ZENO, IMPACT_LOG_FULL, LAM, LS, MAX_EVENTS,
                       MISSING, MODE_AT, MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT, NEED_FALLBACK, NEED_HOLD,
                       NEED_RELEASE, NONFINITE, Q0, QB, QD0, QDB, QDS, QS, RELEASE, RHS, RIDX, RINV, SET_AT, STAGES_AT,
                       T_AREST, T_EVENT, T_SPEED, WARN_LCP, WARN_LOCATE, WARNING, WINV,
@@ -147,6 +148,7 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
     for passes in range(1, MAX_EVENTS + 1):
         if passes % ZENO_PASSES == 0:
             if ta - t_mark < span:
+                ws.k[FLAGS, HANDOFF_AT] = HANDOFF_ZENO
                 return n_ev, m, HANDOFF
             t_mark = ta
         if not trial:
@@ -169,6 +171,7 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
             model.phi(target, qb, p, gb)
         trial = False
         if stuck >= 2 or changes > MODE_BUDGET:
+            ws.k[FLAGS, HANDOFF_AT] = HANDOFF_STUCK if stuck >= 2 else HANDOFF_MODES
             return n_ev, m, HANDOFF
         te = stages.crossing(model, stages.step, ta, target, q, qd, p, tol, rest, m, ws)
         if te >= 0.0:
@@ -213,6 +216,7 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
             continue
         if ta == tb:
             return n_ev, m, DONE
+    ws.k[FLAGS, HANDOFF_AT] = HANDOFF_EVENTS
     return n_ev, m, HANDOFF
 
 
@@ -304,9 +308,9 @@ def lowest_free(g, rest, C):
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def enter_fallback(t, rest, C, log, n_ev):
-    """Log the hand-over to the fallback at t: the persistent contacts are let go (the fallback has none)."""
-    n_ev = log_event(t, 1, np.int64(FALLBACK), log, n_ev)
+def enter_fallback(t, reason, rest, C, log, n_ev):
+    """Log the hand-over to the fallback at t and why (HANDOFF_*): the persistent contacts are let go."""
+    n_ev = log_event(t, reason, np.int64(FALLBACK), log, n_ev)
     for k in range(C):
         if rest[k]:
             n_ev = log_event(t, k, np.int64(RELEASE), log, n_ev)
@@ -460,7 +464,7 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
                         rest[k] = rest0[k]
                     if status == MISSING:
                         return i, n_rec, n_before, MISSING
-                    n_ev = enter_fallback(t, rest, C, log, n_before)
+                    n_ev = enter_fallback(t, ws.k[FLAGS, HANDOFF_AT], rest, C, log, n_before)
                     n_ev, m = stages.fallback(model, stages.update, t, dt, q, qd, p, tol, rest, ws, log, n_ev)
                     ga_ok = False
         if ws.k[FLAGS, 0]:        # (a call per step otherwise: the flags are almost always clear)

@@ -59,7 +59,7 @@ def run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, stop, out, n_r
                     tally[TALLY_FIRST] = log.t[j]
                 tally[TALLY_IMPULSES] += 1.0
             elif kind == FALLBACK:
-                if log.k[j] == 1:
+                if log.k[j] >= 1:       # (entering: the reason, HANDOFF_*; leaving: 0)
                     tally[TALLY_SINCE] = log.t[j]
                 else:
                     tally[TALLY_FALLBACK] += log.t[j] - tally[TALLY_SINCE]

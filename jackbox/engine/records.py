@@ -36,7 +36,7 @@ NEED_HOLD = 4
 IMPULSE = 0             #: an impulse acted on the contact
 REST = 1                #: the contact became persistent (gap held at zero)
 RELEASE = 2             #: a persistent contact let go (its force would have pulled)
-FALLBACK = 3            #: the run entered (contact 1) or left (contact 0) Moreau-Jean time-stepping
+FALLBACK = 3            #: the run entered (contact: why, HANDOFF_*) or left (contact 0) Moreau-Jean time-stepping
 WARNING = 4             #: a solver did not converge; the "contact" is the WARN_* code
 
 # codes of WARNING events
@@ -51,6 +51,11 @@ MODE_BUDGET = 16
 #: rest speed does not end): ZENO_PASSES passes through a step that advance its time by less than
 #: ZENO_SPAN of the step also hand the step to the fallback
 ZENO_PASSES, ZENO_SPAN = 32, 1e-3
+#: why the exact method handed a step to the fallback, logged as the FALLBACK event's "contact" on entry
+#: (0 on leaving) and kept in ``ws.k[FLAGS, HANDOFF_AT]`` until then: an event that made no progress twice,
+#: more than MODE_BUDGET mode changes, Zeno in several contacts (ZENO_PASSES passes), MAX_EVENTS passes
+HANDOFF_STUCK, HANDOFF_MODES, HANDOFF_ZENO, HANDOFF_EVENTS = 1, 2, 3, 4
+HANDOFF_AT = 2
 #: Moreau-Jean steps with an unchanged contact set before the exact method takes over again
 STABLE_STEPS = 8
 #: largest contact set solved exactly by enumeration; larger ones use Gauss-Seidel
@@ -72,6 +77,9 @@ T_RJACK = 5     #: radius of the jack's bounding circle about its centre (broad 
 T_RBOX = 6      #: radius of the box's outer bounding circle (broad phase, ground)
 T_AREST = 7     #: normal accelerations below this are "still": a closed contact that does not leave faster stays held
 T_SPEED = 8     #: T_SPEED + i: bound on |d gap / d qd_i| (1 or a radius); the last slots
+#: a gap this fraction of T_EVENT above its level is at it (gaps of order L carry round-off of about
+#: 1e-16 L): event location stops there, and a bounce whose flight would rise less is at rest
+GAP_ROUNDOFF = 1e-3
 
 # ---------------------------------------------------------------------------
 # the model record
@@ -151,13 +159,14 @@ ROW_BIAS, ROW_GAP, ROW_RATE = 0, 1, 2
 ROW_EXTRA = 3
 
 # rows of Scratch.c, (SC, n_contact) floats: gaps at a step's ends and at a trial
-# time, normal speeds at both ends, gap biases, a right-hand side and contact
-# forces, phi_t, the LCP's right-hand side and unknowns, the dense solver's
+# time, normal speeds at both ends, each near contact's rest speed (the contact
+# update's), a right-hand side and contact
+# forces, a scratch row, the LCP's right-hand side and unknowns, the dense solver's
 # copy, the forces at both ends of a step, the event level of each free
 # contact in a step (gap + level = 0 at its event), a solver's unknowns, the
 # reciprocals of a factorization's diagonal, the persistent contacts' forces at
 # the integrator's four stages (LS + stage)
-GA, GB, GS, VA, VB, BIAS, RHS, LAM, VT, LR, LX, R, LAMA, LAMB, LEV, Y, RINV, LS = range(18)
+GA, GB, GS, VA, VB, VREST, RHS, LAM, VT, LR, LX, R, LAMA, LAMB, LEV, Y, RINV, LS = range(18)
 SC = LS + 4
 # rows of Scratch.n, (SN, n_dof) floats: the trial state at a step's end, the
 # state at a trial time, diag(M^-1), accelerations, the state at a step's start
@@ -166,7 +175,7 @@ SN = 9
 # rows of Scratch.k, (SK, n_contact) integers: the persistent contacts, contacts
 # near, hit and at rest, the LCP's active set, the new persistent set, flags (slot 0:
 # warnings pending, a WARN_* bit mask; slot 1: persistent contacts whose force pulls, a
-# bit mask, for the next contact update)
+# bit mask, for the next contact update; slot HANDOFF_AT: why a step goes to the fallback)
 RIDX, NEAR, HIT, CAND, IDX, NEWREST, FLAGS = range(7)
 SK = 7
 
