@@ -186,8 +186,10 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
 
     Contacts closer than T_GAP take part when they approach or are still.
     Approaching ones get Newton's law (restitution e, or 0 for speeds below
-    T_VREST: those come to rest); all are solved together. Then every contact
-    that is closed and still gets the accelerations' LCP
+    the contact's rest speed: T_VREST, or what it needs to climb out of the
+    event band against its own normal acceleration; those come to rest); all
+    are solved together. Then every contact that is closed and still (below
+    its rest speed) gets the accelerations' LCP
     ``w = A lam + (J a + bias) >= 0, lam >= 0, w.lam = 0``: those that would
     not accelerate away (a force, or a gap acceleration below T_AREST: the
     dependent rows of a redundant set) stay (or become) persistent, the
