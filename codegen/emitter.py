@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import sympy as sp
 
-from .model import CodegenError, Model
+from .model import CodegenError, Model, gap_terms
 from .printer import KernelPrinter
 from .version import GENERATOR, model_hash, seal
 
@@ -227,17 +227,12 @@ def _contact_rows(model: Model, inputs, names) -> str:
     emitted once, not once per contact.
     """
     n = len(model.q)
-    t, q, qd = model.t, model.q, model.qd
     outputs, spans = [], []
     for family in model.families:
-        gap = family.gap
-        jac = [sp.diff(gap, x) for x in q]
-        rate = sum((j * v for j, v in zip(jac, qd)), sp.Integer(0)) + (sp.diff(gap, t) if model.box_motion is not None
-                                                                         else 0)
-        bias = sum((sp.diff(rate, x) * v for x, v in zip(q, qd)), sp.Integer(0)) + (
-            sp.diff(rate, t) if model.box_motion is not None else 0)
+        jac, _, rate, bias = gap_terms(sp.Matrix([family.gap]), model.t, model.q, model.qd,
+                                       model.box_motion is not None)
         spans.append((len(outputs), len(outputs) + n + 3))
-        outputs += jac + [bias, gap, rate]
+        outputs += list(jac) + [bias[0], family.gap, rate[0]]
     replacements, outs = sp.cse(outputs, symbols=sp.numbered_symbols("_x", real=True), order="canonical")
     geometry = {sym for family in model.families for sym in family.symbols}
     local = {sym: "_" + sym.name[len("contact_"):].lower() for sym in geometry}

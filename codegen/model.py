@@ -169,6 +169,22 @@ def to_sympy(text: str, symbols: dict[str, sp.Expr]) -> sp.Expr:
     return walk(tree)
 
 
+def gap_terms(gaps: sp.Matrix, t, q, qd, prescribed: bool):
+    """``(phi_q, phi_t, gap_rate, gap_bias)`` of a column of gaps (phi_t None for a free box).
+
+    The rates ``phi_q qd + phi_t`` and the velocity-product part of the gap
+    accelerations, ``d^2 phi/dt^2 = phi_q qdd + gap_bias``, which persistent
+    contacts need; for every row of ``phi``, and for each family's one gap
+    (the generated ``contact_rows``).
+    """
+    phi_q = gaps.jacobian(q)
+    phi_t = gaps.diff(t) if prescribed else None
+    gap_rate = phi_q * sp.Matrix(qd) + (phi_t if phi_t is not None else sp.zeros(gaps.shape[0], 1))
+    gap_bias = gap_rate.jacobian(q) * sp.Matrix(qd) + (gap_rate.diff(t) if prescribed
+                                                      else sp.zeros(gaps.shape[0], 1))
+    return phi_q, phi_t, gap_rate, gap_bias
+
+
 def derive(spec: ModelSpec) -> Model:
     """The symbolic model of `spec` (see the module docstring)."""
     t = sp.Symbol("t", real=True)
@@ -238,13 +254,7 @@ def derive(spec: ModelSpec) -> Model:
     rows = [row for family in families for row in family.rows()]
     n_wall = len(families[0].values)
     phi = sp.Matrix(rows)
-    phi_q = phi.jacobian(q)
-    phi_t = phi.diff(t) if spec.prescribed else None
-    # Rates and the velocity-product part of the gap accelerations,
-    # d^2 phi/dt^2 = phi_q qdd + gap_bias, used by persistent contacts.
-    gap_rate = phi_q * sp.Matrix(qd) + (phi_t if phi_t is not None else sp.zeros(len(rows), 1))
-    gap_bias = gap_rate.jacobian(q) * sp.Matrix(qd) + (gap_rate.diff(t) if spec.prescribed
-                                                      else sp.zeros(len(rows), 1))
+    phi_q, phi_t, gap_rate, gap_bias = gap_terms(phi, t, q, qd, spec.prescribed)
     box_motion = sp.Matrix(box_pose + box_rate) if spec.prescribed else None
 
     return Model(
