@@ -264,7 +264,8 @@ HANDOFF_REASONS = {K.HANDOFF_STUCK: "an event made no progress", K.HANDOFF_MODES
 
 
 def fallback_intervals(t, k, t_end: float) -> np.ndarray:
-    """(F, 2) start and end of each stretch the fallback integrated, from its FALLBACK events (1 in, 0 out)."""
+    """(F, 2) start and end of each stretch the fallback integrated, from its FALLBACK events (in: the reason,
+    HANDOFF_*, at least 1; out: 0)."""
     out = []
     for time_, into in zip(t.tolist(), k.tolist()):
         if into:
