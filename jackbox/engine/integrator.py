@@ -8,10 +8,12 @@ tuples, compiled with each model so that its state stays in registers
 give the same numbers bit for bit (tests/test_engine.py checks it).
 """
 
+import math
+
 from numba import njit
 
 from .modes import held_accel
-from .records import LAM, LS, RHS, RIDX, RINV, WINV
+from .records import FLAGS, LAM, LS, PASSES_AT, RHS, RIDX, RINV, WINV
 
 #: the classical RK4 tableau (diagonal): stage s is evaluated at t + NODES[s] dt, at the start
 #: state moved NODES[s] dt along stage s-1's slope
@@ -28,7 +30,10 @@ def rk4(model, t, q, qd, dt, p, q_out, qd_out, m, ws):
     """One RK4 step from (t, q, qd) of length dt into q_out, qd_out (they may be q and qd).
 
     With m > 0 persistent contacts (``ws.k[RIDX]``) the accelerations hold them
-    closed (:func:`jackbox.engine.modes.contact_accel`); their forces at the
+    closed (:func:`jackbox.engine.modes.contact_accel`), in the passes the
+    exact loop set for the grid step (``ws.k[FLAGS, PASSES_AT]``, from the
+    state at its start and its whole length, so that a step from that state
+    is the same function of its length throughout an event search); their forces at the
     four stages are left in ``ws.c[LS + stage, :m]`` (the release test reads
     them: :func:`jackbox.engine.events.first_release`), their matrix at the
     last stage in ``ws.A``.
@@ -37,15 +42,60 @@ def rk4(model, t, q, qd, dt, p, q_out, qd_out, m, ws):
     if m > 0:
         model.inverse_mass(p, winv)
     rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, ws.work, ws.c[LS:LS + 4], ws.k[RIDX], ws.jac, winv,
-             ws.A, ws.lu, ws.c[RINV], ws.c[RHS], ws.c[LAM])
+             ws.A, ws.lu, ws.c[RINV], ws.c[RHS], ws.c[LAM], ws.k[FLAGS, PASSES_AT])
+
+
+#: a step with held contacts turns its fastest angle by at most this much (rad) in one RK4 pass;
+#: a longer step is cut into equal passes. RK4's error on the constrained, curved motion grows as
+#: (omega dt)^5 per pass: at omega dt = 0.7-5.7 (a coarse step on a fast spinning box) a whole
+#: step in one pass drifted the angular momentum by 3.6e-10-1.8e-7 of its scale per step and
+#: could raise the energy. Free flight needs no cut: its motion is not curved by a constraint.
+TURN_PER_PASS = 0.05
+#: at most this many passes in one step (a non-finite rate takes one)
+MAX_PASSES = 64
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam):
+def held_passes(qd, dt, n):
+    """The RK4 passes a held step of length dt from rates qd takes: its fastest angle turns TURN_PER_PASS at most in each.
+
+    The angles are the coordinates 2, 5, ... (each body's third); 1 for a
+    step whose turn is within TURN_PER_PASS (nearly every step) or not finite.
+    """
+    w = 0.0
+    for d in range(2, n, 3):
+        w = max(w, abs(qd[d]))
+    turn = w * abs(dt)
+    if not turn > TURN_PER_PASS:
+        return 1
+    if not turn < MAX_PASSES * TURN_PER_PASS:
+        return MAX_PASSES if math.isfinite(turn) else 1
+    return int(math.ceil(turn / TURN_PER_PASS))
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam, passes):
     """:func:`rk4` on the arrays themselves (``winv`` filled where m > 0), like :func:`~.modes.held_accel`.
 
-    w: (9, n) work rows; ls: (4, C) the held forces at each stage.
+    w: (9, n) work rows; ls: (4, C) the held forces at each stage. With held
+    contacts the step is taken in ``passes`` equal RK4 passes
+    (:func:`held_passes`); ``ls[0]`` keeps the forces at the step's start and
+    ``ls[1:]`` the smallest of each later pass's stages (the release screen
+    looks at all of them).
     """
+    if m == 0 or passes <= 1:
+        rk4_pass(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam, False)
+        return
+    h = dt / passes
+    rk4_pass(model, t, q, qd, h, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam, False)
+    for j in range(1, passes):
+        rk4_pass(model, t + j * h, q_out, qd_out, h, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y,
+                 lam, True)
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def rk4_pass(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam, later):
+    """One RK4 pass of :func:`rk4_rows` (later: not the step's first; its forces are folded into ``ls[1:]``)."""
     n = model.n_dof
     qs = w[0]              # a stage's coordinates
     v = w[1:5]             # the stages' rates: the slopes of q
@@ -64,8 +114,14 @@ def rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A
             model.accel(t + h, qs, v[s], p, a[s])
         else:
             held_accel(model, t + h, qs, v[s], p, m, a[s], ridx, jac, winv, A, L, rinv, y, lam)
-            for i in range(m):
-                ls[s, i] = lam[i]
+            if later:
+                row = max(s, 1)
+                for i in range(m):
+                    if not lam[i] >= ls[row, i]:      # (NaN too)
+                        ls[row, i] = lam[i]
+            else:
+                for i in range(m):
+                    ls[s, i] = lam[i]
     h = dt / SCALE
     for i in range(n):
         q_out[i] = q[i] + h * (WEIGHTS[0] * qd[i] + WEIGHTS[1] * v[1, i] + WEIGHTS[2] * v[2, i] + WEIGHTS[3] * v[3, i])

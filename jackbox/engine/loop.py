@@ -36,12 +36,12 @@ import numpy as np
 from numba import njit
 
 from .impact import resolve_impacts
-from .integrator import rk4_rows
+from .integrator import held_passes, rk4_rows
 from .modes import log_event, project_rest, project_rows, rest_index
 from .records import (DONE, EXACT_AT, FALLBACK, FLAGS, GA, GB, HANDOFF, HANDOFF_AT, HANDOFF_EVENTS,
                       HANDOFF_MODES, HANDOFF_STUCK, HANDOFF_ZENO, IMPACT_LOG_FULL, LAM, LS, MAX_EVENTS,
                       MISSING, MODE_AT, MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT, NEED_FALLBACK, NEED_HOLD,
-                      NEED_RELEASE, NONFINITE, Q0, QB, QD0, QDB, QDS, QS, RELEASE, RHS, RIDX, RINV, SET_AT, STAGES_AT,
+                      NEED_RELEASE, NONFINITE, PASSES_AT, Q0, QB, QD0, QDB, QDS, QS, RELEASE, RHS, RIDX, RINV, SET_AT, STAGES_AT,
                       T_AREST, T_EVENT, T_SPEED, WARN_LCP, WARN_LOCATE, WARNING, WINV,
                       ZENO_PASSES, ZENO_SPAN, Events, ExactType, ModelType, NaiveType, Samples, StagesType, borrow,
                       from_table, keep, scratch)
@@ -145,6 +145,7 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
     span = ZENO_SPAN * (tb - ta)
     qb, qdb = ws.n[QB], ws.n[QDB]
     ga, gb = ws.c[GA], ws.c[GB]
+    ws.k[FLAGS, PASSES_AT] = held_passes(qd, tb - ta, n)    # (the step's held steps: integrator.rk4)
     for passes in range(1, MAX_EVENTS + 1):
         if passes % ZENO_PASSES == 0:
             if ta - t_mark < span:
@@ -259,7 +260,8 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws):
     while i < i_stop:
         ta = t0 + i * dt
         tb = t0 + (i + 1) * dt
-        rk4_rows(model, ta, q, qd, tb - ta, p, qb, qdb, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam)
+        rk4_rows(model, ta, q, qd, tb - ta, p, qb, qdb, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam,
+                 held_passes(qd, tb - ta, n))
         stop = False
         for j in range(m):
             floor = -arest / A[j, j]

@@ -56,6 +56,8 @@ ZENO_PASSES, ZENO_SPAN = 32, 1e-3
 #: more than MODE_BUDGET mode changes, Zeno in several contacts (ZENO_PASSES passes), MAX_EVENTS passes
 HANDOFF_STUCK, HANDOFF_MODES, HANDOFF_ZENO, HANDOFF_EVENTS = 1, 2, 3, 4
 HANDOFF_AT = 2
+#: slot of ws.k[FLAGS] with the RK4 passes of the grid step's held steps (integrator.held_passes; 0: one)
+PASSES_AT = 3
 #: Moreau-Jean steps with an unchanged contact set before the exact method takes over again
 STABLE_STEPS = 8
 #: largest contact set solved exactly by enumeration; larger ones use Gauss-Seidel
@@ -175,7 +177,8 @@ SN = 9
 # rows of Scratch.k, (SK, n_contact) integers: the persistent contacts, contacts
 # near, hit and at rest, the LCP's active set, the new persistent set, flags (slot 0:
 # warnings pending, a WARN_* bit mask; slot 1: persistent contacts whose force pulls, a
-# bit mask, for the next contact update; slot HANDOFF_AT: why a step goes to the fallback)
+# bit mask, for the next contact update; slot HANDOFF_AT: why a step goes to the fallback; slot
+# PASSES_AT: the RK4 passes of the grid step's held steps)
 RIDX, NEAR, HIT, CAND, IDX, NEWREST, FLAGS = range(7)
 SK = 7
 
