@@ -186,8 +186,10 @@ def solve_lcp(A, b, m, lam, ws):
 def lcp(A, b, m, lam, ws, sweeps):
     """The LCP ``w = A lam + b >= 0, lam >= 0, w . lam = 0`` into lam; False if unsolved (flags nothing).
 
-    Exact for up to MAX_ENUMERATED contacts: tries every active set, smallest
-    first, and keeps the first whose impulses are non-negative and whose
+    Exact for up to MAX_ENUMERATED contacts: no impulse where nothing
+    approaches (every ``b >= 0``); else tries every active set, smallest
+    first (each size's sets in increasing order of their bit masks, visited
+    directly), and keeps the first whose impulses are non-negative and whose
     inactive contacts do not approach. ``A = J M^-1 J^T`` is positive
     semi-definite, so a solution exists and the velocities it gives are unique
     (the impulses are not, on a redundant set: the smallest set that works is
@@ -198,17 +200,27 @@ def lcp(A, b, m, lam, ws, sweeps):
     for k in range(m):
         bscale = max(bscale, abs(b[k]))
     tol = 1e-10 * bscale
+    still = True                 # the empty set: nothing approaches, no impulse (the answer every larger
+    for k in range(m):           # set would come to, after all of them, through Gauss-Seidel's first sweep)
+        if not b[k] >= 0.0:
+            still = False
+    if still:
+        for k in range(m):
+            lam[k] = 0.0
+        return True
     if m <= MAX_ENUMERATED:
         sub, rhs, x, idx = ws.sub, ws.c[LR], ws.c[LX], ws.k[IDX]
         for size in range(1, m + 1):
-            for mask in range(1, 1 << m):
+            mask = (1 << size) - 1           # the sets of this size in increasing order (Gosper's successor)
+            while mask < 1 << m:
                 count = 0
                 for k in range(m):
                     if mask >> k & 1:
                         idx[count] = k
                         count += 1
-                if count != size:
-                    continue
+                low = mask & -mask
+                ripple = mask + low
+                this, mask = mask, (((ripple ^ mask) >> 2) // low) | ripple
                 for i in range(size):
                     rhs[i] = -b[idx[i]]
                     for j in range(size):
@@ -226,7 +238,7 @@ def lcp(A, b, m, lam, ws, sweeps):
                 for i in range(size):
                     lam[idx[i]] = max(x[i], 0.0)
                 for k in range(m):
-                    if not mask >> k & 1:
+                    if not this >> k & 1:
                         w = b[k]
                         for j in range(m):
                             w += A[k, j] * lam[j]
