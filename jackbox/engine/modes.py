@@ -26,16 +26,35 @@ import numpy as np
 from numba import njit
 
 from .impact import contact_matrix, factor_rows, solve_lcp, solve_rows
-from .records import (ACC, CAND, FLAGS, GAP_ROUNDOFF, GS, HIT, IMPULSE, LAM, NEAR, NEWREST, RELEASE, REST, RHS,
-                      RIDX, RINV, ROW_BIAS, ROW_GAP, ROW_RATE, T_AREST, T_EVENT, T_GAP, T_VREST, VB, VREST, WINV)
+from .records import (ACC, CAND, CARRIES, FLAGS, GAP_ROUNDOFF, GS, HIT, IMPULSE, LAM, NEAR, NEWREST, RELEASE, REST,
+                      RHS, RIDX, RINV, ROW_BIAS, ROW_GAP, ROW_RATE, STILL, T_AREST, T_EVENT, T_GAP, T_VREST, VB, VREST,
+                      WINV)
 
 
 @njit(cache=True, no_cpython_wrapper=True)
 def rest_index(rest, C, ridx):
-    """Indices of the persistent contacts (of the first C slots of ``rest``) into ridx; returns their number."""
+    """Indices of the persistent contacts (of the first C slots of ``rest``) into ridx; returns their number.
+
+    Those the accelerations' LCP gave a force (``rest[k] == CARRIES``) come
+    first, then those it held still with none (``STILL``): the held dynamics'
+    rank-revealing solve (:func:`~.impact.factor_rows`) keeps the rows in this
+    order and gives the rows that depend on earlier ones no force, so on a
+    redundant set (a square jack flush in a corner: four contacts, three
+    degrees of freedom) the forces it finds are the LCP's, none pulling. In
+    the contacts' own order the solve had put the load of a dependent contact
+    on the others, one of them pulling hard (-5.8 N against a floor of
+    -1.7e-5 N, a jack in a corner of the shaken box at e = 0): the release
+    screen stopped every step, and the contact update held the same set again.
+    The accelerations do not depend on the order (they are unique where the
+    forces are not).
+    """
     m = 0
     for k in range(C):
-        if rest[k]:
+        if rest[k] == CARRIES:
+            ridx[m] = k
+            m += 1
+    for k in range(C):
+        if rest[k] and rest[k] != CARRIES:
             ridx[m] = k
             m += 1
     return m
@@ -301,8 +320,10 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
             for j in range(c):
                 w += A[i, j] * force[j]
             letting_go = ws.k[FLAGS, 1] >> cand[i] & 1
-            if force[i] > 0.0 or (w < tol[T_AREST] and not letting_go):
-                newrest[cand[i]] = 1
+            if force[i] > 0.0:
+                newrest[cand[i]] = CARRIES
+            elif w < tol[T_AREST] and not letting_go:
+                newrest[cand[i]] = STILL
     ws.k[FLAGS, 1] = 0
     for k in range(C):
         if newrest[k] and not rest[k]:

@@ -36,6 +36,11 @@ NEED_HOLD = 4
 IMPULSE = 0             #: an impulse acted on the contact
 REST = 1                #: the contact became persistent (gap held at zero)
 RELEASE = 2             #: a persistent contact let go (its force would have pulled)
+
+# a contact's mode (the exact loop's rest array): 0 free, else persistent; the contact update marks
+# those the accelerations' LCP gave a force apart from those it held still with none (modes.rest_index)
+CARRIES = 1
+STILL = 2
 FALLBACK = 3            #: the run entered (contact: why, HANDOFF_*) or left (contact 0) Moreau-Jean time-stepping
 WARNING = 4             #: a solver did not converge; the "contact" is the WARN_* code
 
