@@ -118,3 +118,21 @@ def test_model_spec_is_plain_data():
     again = codegen.ModelSpec(**{**vars(spec), "forces": dict(reversed(spec.forces))})
     assert again == spec and hash(again) == hash(spec)
     assert all(isinstance(v, (str, int, bool, tuple)) for v in vars(spec).values())
+
+
+def test_a_plain_install_ships_every_package_of_the_checkout():
+    # an editable install sees the folders; `pip install .` ships only the packages pyproject names
+    # (it once left jackbox.engine out, and `import jackbox` failed on a clean install)
+    import fnmatch
+    import tomllib
+
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["tool"]["setuptools"]
+    here = {str(init.parent.relative_to(ROOT)).replace("/", ".")
+            for top in ("codegen", "generated", "jackbox") for init in (ROOT / top).rglob("__init__.py")}
+    packages = config["packages"]
+    if isinstance(packages, list):
+        shipped = set(packages)
+    else:                  # [tool.setuptools.packages.find]: the packages its include patterns match
+        shipped = {name for name in here if any(fnmatch.fnmatchcase(name, pattern)
+                                                for pattern in packages["find"]["include"])}
+    assert "jackbox.engine" in here and here <= shipped, here - shipped
