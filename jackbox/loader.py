@@ -475,12 +475,13 @@ class Kernel:
         """Whether every model function was loaded from Numba's cache (none compiled in this process)."""
         return all(cache == "hit" for cache in self.module.PART_CACHE.values())
 
-    def table(self, loops=("exact",), lazy: bool = True):
+    def table(self, loops=("exact",), lazy: bool | str = True):
         """The model and the engine's loops as the one array the entry points take (made once per kernel).
 
         lazy: the stages compiled on first need (engine.LAZY) may be left out
         (the exact loop hands back a step that needs one: see
-        :meth:`integrate_exact` and :meth:`run_members`).
+        :meth:`integrate_exact` and :meth:`run_members`); ``engine.RESUME``:
+        left out until one is needed, even if cached (see :func:`engine.table`).
         """
         key = (loops, lazy)
         if key not in self._tables:
@@ -491,7 +492,7 @@ class Kernel:
                         rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, ev_kind, n_ev, log=None):
         while True:
             i, n_rec, n_ev, status = engine.entry("run_exact")(
-                self.table(), q, qd, rest, p, tol, float(t0), float(dt), i_begin, i_end, n_total, record_every,
+                self.table(lazy=engine.RESUME), q, qd, rest, p, tol, float(t0), float(dt), i_begin, i_end, n_total, record_every,
                 rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, ev_kind, n_ev)
             if status != engine.MISSING:
                 return i, n_rec, n_ev, status
@@ -501,6 +502,7 @@ class Kernel:
                     f"at t = {t0 + i * dt:g} s (first use only) ...")
             if engine.prepare((), ("exact",)) == "miss":
                 engine.cache.kept_for_now("a stage of the engine")
+            self._tables.pop((("exact",), engine.RESUME), None)
             self._tables.pop((("exact",), True), None)
             i_begin = i
 
@@ -657,7 +659,7 @@ def kernel_for(scene: Scene, log=None, method: str | None = None) -> Kernel:
     if bound:
         engine.cool_binder()
     if method is not None:
-        engine.start(ENTRY[method], _loops_of(method), lazy=method in LAZY_METHODS,
+        engine.start(ENTRY[method], _loops_of(method), lazy=LAZY_METHODS.get(method, False),
                      busy=sum(engine.PART_COST.get(name, 0.5) for name in unbound))
     if log and not bound:
         log(f"compiling the model functions of {scene.name} (first use of this structure) ...")
@@ -689,8 +691,9 @@ ENTRY = {"exact": ("run_exact", "fill_tolerances"), "naive": ("run_naive",),
 #: and run on a GPU, runs none)
 LOOP = {"exact": "exact", "naive": "naive", "ensemble": "exact", "chaos": "exact", "setup": None}
 #: the methods whose runs leave the stages of engine.LAZY out until one needs them (see Kernel.integrate_exact
-#: and Kernel.run_members): an elastic run or study never compiles them
-LAZY_METHODS = ("exact", "ensemble", "chaos")
+#: and Kernel.run_members): an elastic run or study never compiles them; a single run ("exact", which resumes
+#: at the step that needs one) never even loads them from the cache
+LAZY_METHODS = {"exact": engine.RESUME, "ensemble": True, "chaos": True}
 
 
 def compile_kernel(kernel: Kernel, method: str | None = None) -> dict:
@@ -718,7 +721,7 @@ def compile_kernel(kernel: Kernel, method: str | None = None) -> dict:
         _check_manifest(engine.cache.files(), folder / "sums.json", "the engine")
     cached = bool(engine.cache.files())
     try:
-        result = engine.prepare(names, loops, lazy=method in LAZY_METHODS)
+        result = engine.prepare(names, loops, lazy=LAZY_METHODS.get(method, False))
     except Exception as exc:       # a damaged cache entry that slipped past the manifest
         if not cached:
             raise
@@ -726,7 +729,7 @@ def compile_kernel(kernel: Kernel, method: str | None = None) -> dict:
               f"({type(exc).__name__}: {str(exc)[:120]}): compiling it again")
         _clear(engine.cache.files(), folder / "sums.json")
         _reset_engine(names, loops)
-        result = engine.prepare(names, loops, lazy=method in LAZY_METHODS)
+        result = engine.prepare(names, loops, lazy=LAZY_METHODS.get(method, False))
     if result == "miss" and folder is not None:
         _write_manifest(engine.cache.files(), folder / "sums.json")
         engine.cache.kept_for_now(f"the engine ({', '.join(names)})")

@@ -141,6 +141,32 @@ def test_an_elastic_run_needs_no_lazy_stage(monkeypatch, fresh_kernels):
     assert not set(engine.LAZY) & set(engine._loops)
 
 
+def test_a_single_run_loads_the_cached_lazy_stages_only_when_a_step_needs_them(monkeypatch, fresh_kernels):
+    # a warm start of an elastic run leaves the stages for held contacts on disk (a load is ~8 ms); a
+    # run that reaches a held contact loads them at that step and resumes there, with the same numbers
+    held = jackbox.load_scene("drop", {"restitution": 0.0, "ground_restitution": 0.0})
+    whole = jackbox.simulate(held, t_end=1.5)
+    assert all(engine.cached(name) for name in engine.LAZY)
+    monkeypatch.setattr(engine, "_loops", {name: fn for name, fn in engine._loops.items() if name not in engine.LAZY})
+    statuses = []
+    run_exact, entry = engine.entry("run_exact"), engine.entry
+
+    def counted(*args):
+        out = run_exact(*args)
+        statuses.append(out[3])
+        return out
+
+    monkeypatch.setattr(engine, "entry", lambda name: counted if name == "run_exact" else entry(name))
+    traj = jackbox.simulate("shaken", t_end=2.0)
+    assert len(traj.impact_t) > 0 and statuses[-1] == engine.DONE
+    assert not set(engine.LAZY) & set(engine._loops)
+    statuses.clear()
+    lazy = jackbox.simulate(held, t_end=1.5)
+    assert engine.MISSING in statuses and statuses[-1] == engine.DONE and "hold" in engine._loops
+    for key in ("t", "q", "qd", "energy", "impact_t", "contact_t", "contact_event"):
+        np.testing.assert_array_equal(getattr(lazy, key), getattr(whole, key), err_msg=key)
+
+
 def test_the_parts_are_shared_out_by_cost(monkeypatch):
     started = []
 

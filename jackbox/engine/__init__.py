@@ -89,6 +89,8 @@ _loops: dict = {}
 NO_REFERENCES = ("step", "update", "crossing", "release", "hold")
 #: the stages compiled on first need only: name -> its bit in Stages.missing (see jackbox.engine.loop)
 LAZY = {"release": NEED_RELEASE, "fallback": NEED_FALLBACK, "hold": NEED_HOLD}
+#: ``lazy=RESUME`` (see :func:`table`): for a run that resumes at the step that needs a stage left out
+RESUME = "resume"
 #: what each part costs to compile, in seconds on the 2-core machine of benchmarks/results/compile.md, each
 #: compiled alone after the model (benchmarks/compile_parts.py times them in a row): only to share the parts
 #: out between two processes
@@ -100,7 +102,7 @@ _helpers: dict = {}
 
 __all__ = ["DONE", "HANDOFF_STUCK", "HANDOFF_MODES", "HANDOFF_ZENO", "HANDOFF_EVENTS", "IMPACT_LOG_FULL", "MISSING", "NONFINITE", "STALLED", "IMPULSE", "REST", "RELEASE", "FALLBACK", "WARNING",
            "WARN_LCP", "WARN_LOCATE", "MAX_EVENTS", "MODE_SLOTS", "T_GAP", "T_EVENT", "T_VREST", "T_AREST", "T_BOXV", "T_WALL", "T_RJACK", "T_RBOX", "T_SPEED",
-           "Model", "Samples", "Events", "Setup", "LANES", "SIGNATURES", "SIZES", "ENTRIES", "LOOPS", "LAZY", "entry", "compiled_loop", "prepare", "start", "start_binding", "wait_binding", "bind_part",
+           "Model", "Samples", "Events", "Setup", "LANES", "SIGNATURES", "SIZES", "ENTRIES", "LOOPS", "LAZY", "RESUME", "entry", "compiled_loop", "prepare", "start", "start_binding", "wait_binding", "bind_part",
            "binding_name", "table"]
 
 
@@ -131,11 +133,14 @@ def table(model: Model, loops=("exact",), lazy: bool = True) -> np.ndarray:
     or stage not asked for, which must then not be called); row 1: the
     functions' native addresses. lazy: a stage of LAZY that is neither in
     memory nor in the cache is left out, and its bit set in the ``missing``
-    column (the exact loop then hands back a step that needs it); else every
-    stage is compiled now. With Numba's JIT off, a tuple of the values.
+    column (the exact loop then hands back a step that needs it); lazy=RESUME:
+    every such stage not in memory is left out, cached or not (a single run
+    resumes at the step that needs one, so loading it waits for that need:
+    an elastic run never has it); else every stage is compiled now. With Numba's JIT off, a tuple of the values.
     """
     wanted = set(loops).union(*(LOOPS[name][3] for name in loops))
-    left_out = {name for name in LAZY if lazy and name in wanted and not ready(name)}
+    left_out = {name for name in LAZY if lazy and name in wanted
+                and not (name in _loops if lazy == RESUME else ready(name))}
     missing = sum(LAZY[name] for name in left_out)
     values = (*model, *(missing if name == "missing" else
                         compiled_loop(name) if name in wanted and name not in left_out else 0
@@ -187,12 +192,14 @@ def native_address(fn) -> int:
 def parts(names, loops=(), lazy: bool = False) -> list[str]:
     """What :func:`prepare` would compile or load for these entry points and loops, in order.
 
-    lazy: leave out the stages of LAZY that are not cached (the exact loop runs without them).
+    lazy: leave out the stages of LAZY that are not cached (the exact loop runs without them);
+    RESUME: those not in memory, cached or not (see :func:`table`).
     """
     out = []
     for name in loops:      # what each needs first, then itself
         for need in (*LOOPS[name][3], name):
-            if need not in out and need not in _loops and not (lazy and need in LAZY and not cached(need)):
+            if need not in out and need not in _loops and not (
+                    lazy and need in LAZY and (lazy == RESUME or not cached(need))):
                 out.append(need)
     return out + [name for name in names if name not in out and not _dispatcher(name).signatures]
 
