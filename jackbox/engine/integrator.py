@@ -83,27 +83,18 @@ def rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A
     ``ls[1:]`` the smallest of each later pass's stages (the release screen
     looks at all of them).
     """
-    if m > 0 and passes > 1:
-        rk4_passes(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam, passes)
-    else:
-        rk4_pass(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam, False)
+    k = passes if m > 0 and passes > 1 else 1
+    h = dt / k
+    for j in range(k):
+        # one call of the pass (its body compiled and inlined once: three call sites cost 3 s more
+        # compiling); the later passes start where the one before ended
+        start_q = q if j == 0 else q_out
+        start_qd = qd if j == 0 else qd_out
+        rk4_pass(model, t + j * h, start_q, start_qd, h, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y,
+                 lam, j > 0)
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def rk4_passes(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam, passes):
-    """:func:`rk4_rows` in ``passes`` equal passes (a step that turns fast with contacts held).
-
-    Kept apart, so that the one-pass step (nearly every step) is the pass
-    itself, inlined, with no loop around it.
-    """
-    h = dt / passes
-    rk4_pass(model, t, q, qd, h, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam, False)
-    for j in range(1, passes):
-        rk4_pass(model, t + j * h, q_out, qd_out, h, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y,
-                 lam, True)
-
-
-@njit(cache=True, no_cpython_wrapper=True, inline="always")
 def rk4_pass(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam, later):
     """One RK4 pass of :func:`rk4_rows` (later: not the step's first; its forces are folded into ``ls[1:]``)."""
     n = model.n_dof
