@@ -136,7 +136,8 @@ def table(model: Model, loops=("exact",), lazy: bool = True) -> np.ndarray:
     column (the exact loop then hands back a step that needs it); lazy=RESUME:
     every such stage not in memory is left out, cached or not (a single run
     resumes at the step that needs one, so loading it waits for that need:
-    an elastic run never has it); else every stage is compiled now. With Numba's JIT off, a tuple of the values.
+    an elastic run never has it); else every stage is compiled now. With
+    Numba's JIT off, a tuple of the values.
     """
     wanted = set(loops).union(*(LOOPS[name][3] for name in loops))
     left_out = {name for name in LAZY if lazy and name in wanted

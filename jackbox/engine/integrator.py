@@ -86,8 +86,8 @@ def rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A
     k = passes if m > 0 and passes > 1 else 1
     h = dt / k
     for j in range(k):
-        # one call of the pass (its body compiled and inlined once: three call sites cost 3 s more
-        # compiling); the later passes start where the one before ended
+        # one call of the pass, so its body is compiled once (three call sites compiled the step part
+        # in 5.0 s against 2.7 s); the later passes start where the one before ended
         start_q = q if j == 0 else q_out
         start_qd = qd if j == 0 else qd_out
         rk4_pass(model, t + j * h, start_q, start_qd, h, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y,
