@@ -42,7 +42,7 @@ def rk4(model, t, q, qd, dt, p, q_out, qd_out, m, ws):
     if m > 0:
         model.inverse_mass(p, winv)
     rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, ws.work, ws.c[LS:LS + 4], ws.k[RIDX], ws.jac, winv,
-             ws.A, ws.lu, ws.c[RINV], ws.c[RHS], ws.c[LAM], ws.k[FLAGS, PASSES_AT])
+             ws.A, ws.lu, ws.c[RINV], ws.c[RHS], ws.c[LAM], ws.k[FLAGS, PASSES_AT], False)
 
 
 #: a step with held contacts turns its fastest angle by at most this much (rad) in one RK4 pass;
@@ -74,14 +74,16 @@ def held_passes(qd, dt, n):
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam, passes):
+def rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam, passes,
+             factored):
     """:func:`rk4` on the arrays themselves (``winv`` filled where m > 0), like :func:`~.modes.held_accel`.
 
     w: (9, n) work rows; ls: (4, C) the held forces at each stage. With held
     contacts the step is taken in ``passes`` equal RK4 passes
     (:func:`held_passes`); ``ls[0]`` keeps the forces at the step's start and
     ``ls[1:]`` the smallest of each later pass's stages (the release screen
-    looks at all of them).
+    looks at all of them). factored: the held rows' matrix at q is factored
+    already (:func:`~.modes.settle_rows`; its first stage does not factor it again).
     """
     k = passes if m > 0 and passes > 1 else 1
     h = dt / k
@@ -91,12 +93,13 @@ def rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A
         start_q = q if j == 0 else q_out
         start_qd = qd if j == 0 else qd_out
         rk4_pass(model, t + j * h, start_q, start_qd, h, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y,
-                 lam, j > 0)
+                 lam, j > 0, factored and j == 0)
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def rk4_pass(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam, later):
-    """One RK4 pass of :func:`rk4_rows` (later: not the step's first; its forces are folded into ``ls[1:]``)."""
+def rk4_pass(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam, later, factored):
+    """One RK4 pass of :func:`rk4_rows` (later: not the step's first; its forces are folded into ``ls[1:]``;
+    factored: its first stage's matrix is factored)."""
     n = model.n_dof
     qs = w[0]              # a stage's coordinates
     v = w[1:5]             # the stages' rates: the slopes of q
@@ -114,7 +117,7 @@ def rk4_pass(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A
         if m == 0:
             model.accel(t + h, qs, v[s], p, a[s])
         else:
-            held_accel(model, t + h, qs, v[s], p, m, a[s], ridx, jac, winv, A, L, rinv, y, lam)
+            held_accel(model, t + h, qs, v[s], p, m, a[s], ridx, jac, winv, A, L, rinv, y, lam, factored and s == 0)
             if later:
                 row = max(s, 1)
                 for i in range(m):

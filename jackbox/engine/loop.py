@@ -37,8 +37,8 @@ from numba import njit
 
 from .impact import resolve_impacts
 from .integrator import held_passes, rk4_rows
-from .modes import log_event, project_rest, project_rows, rest_index
-from .records import (DONE, EXACT_AT, FALLBACK, FLAGS, GA, GB, HANDOFF, HANDOFF_AT, HANDOFF_EVENTS,
+from .modes import log_event, rest_index, settle_rest, settle_rows
+from .records import (DONE, DRIFT, EXACT_AT, FALLBACK, FLAGS, GA, GB, HANDOFF, HANDOFF_AT, HANDOFF_EVENTS,
                       HANDOFF_MODES, HANDOFF_STUCK, HANDOFF_ZENO, IMPACT_LOG_FULL, LAM, LS, MAX_EVENTS,
                       MISSING, MODE_AT, MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT, NEED_FALLBACK, NEED_HOLD,
                       NEED_RELEASE, NONFINITE, PASSES_AT, Q0, QB, QD0, QDB, QDS, QS, RELEASE, RHS, RIDX, RINV, SET_AT, STAGES_AT,
@@ -136,6 +136,7 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
     n = model.n_dof
     C = model.n_contact
     level = 0.5 * tol[T_EVENT]
+    t_begin = ta
     target = tb
     releasing = False
     watch_release = True     # off for the rest of the step once a release changed nothing
@@ -204,8 +205,8 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
             q[d] = qb[d]
             qd[d] = qdb[d]
         ta = target
-        if m > 0:
-            project_rest(model, ta, q, qd, p, m, level, np.int64(1), ws)
+        if m > 0:       # (as hold does: the same numbers whichever loop takes a quiet held step)
+            settle_rest(model, ta, q, qd, p, m, level, DRIFT * tol[T_EVENT], tb - t_begin, ws)
             model.phi(ta, q, p, ga)
         else:
             for k in range(C):
@@ -222,14 +223,14 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws):
+def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, record_every, n_total):
     """Steps i, i+1, ... with the m persistent contacts held, while nothing happens in them.
 
     The resting counterpart of the model's ``fly``: one call for a stretch of
     quiet steps, each the same arithmetic as :func:`advance` on a step with no
     event (:func:`~.integrator.rk4`, the release screen of
     :func:`~.events.first_release`, the near test of
-    :func:`~.events.first_crossing`, one pass of :func:`~.modes.project_rest`),
+    :func:`~.events.first_crossing`, :func:`~.modes.settle_rows`),
     on the scratch's arrays taken out once: each of those calls would pass
     the model and scratch records, some hundred and fifty words, which cost
     more than a held step's own solves. Stops at i_stop, or before a step
@@ -240,9 +241,11 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws):
     step's band and by what each projection moved) says one could be near:
     a contact resting on a floor with the others far from the walls takes
     no gap row at all. The gaps at the state reached are left in
-    ``ws.c[GA]``. Returns ``(i, trial)``: trial 1 when the step it stopped
-    before is already integrated (``ws.n[QB]``, ``ws.n[QDB]``, its gaps in
-    ``ws.c[GB]`` and its forces in ``ws.c[LS:]``), as :func:`advance` takes it.
+    ``ws.c[GA]``. The samples on the way (steps that are multiples of
+    record_every, and n_total) go into ``out`` from n_rec. Returns ``(i,
+    trial, n_rec)``: trial 1 when the step it stopped before is already
+    integrated (``ws.n[QB]``, ``ws.n[QDB]``, its gaps in ``ws.c[GB]`` and its
+    forces in ``ws.c[LS:]``), as :func:`advance` takes it.
     """
     n, C = model.n_dof, model.n_contact
     ridx, jac, A, L, w = ws.k[RIDX], ws.jac, ws.A, ws.lu, ws.work
@@ -253,15 +256,17 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws):
     half = 0.5 * tol[T_EVENT]
     deep = half + tol[T_EVENT]
     arest = tol[T_AREST]
+    drift = DRIFT * tol[T_EVENT]      # a held gap off its level by less is round-off (modes.settle_rows)
     model.inverse_mass(p, winv)
     model.phi(t0 + i * dt, q, p, ga)
     fresh = True                 # whether ga holds the gaps at (t, q)
+    factored = False             # whether L, rinv hold the factorization of the held rows at q
     low = lowest_free(ga, rest, C)
     while i < i_stop:
         ta = t0 + i * dt
         tb = t0 + (i + 1) * dt
         rk4_rows(model, ta, q, qd, tb - ta, p, qb, qdb, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam,
-                 held_passes(qd, tb - ta, n))
+                 held_passes(qd, tb - ta, n), factored)
         stop = False
         for j in range(m):
             floor = -arest / A[j, j]
@@ -284,19 +289,22 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws):
                 if not rest[k] and min(ga[k], gb[k]) + deep < band:
                     stop = True
         if stop:
-            return i, 1
+            return i, 1, n_rec
         low = lowest_free(gb, rest, C) if looked else low - band    # (a bound on the free gaps at tb)
         for d in range(n):
             q[d] = qb[d]
             qd[d] = qdb[d]
-        project_rows(model, tb, q, qd, p, m, half, np.int64(1), ridx, jac, winv, A, L, rinv, y, lam)
+        factored = settle_rows(model, tb, q, qd, p, m, half, drift, tb - ta, ridx, jac, winv, A, L, rinv, y, lam)
         for d in range(n):       # what the projection moved any gap by, at most
             low -= abs(q[d] - qb[d]) * tol[T_SPEED + d]
         fresh = False
         i += 1
+        if i % record_every == 0 or i == n_total:
+            record(model, tb, q, qd, p, n_rec, out, ws.box)
+            n_rec += 1
     if not fresh:
         model.phi(t0 + i * dt, q, p, ga)
-    return i, 0
+    return i, 0, n_rec
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -385,32 +393,37 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
             # held contacts. Each stops before a step that needs care, its trial in qb, qdb.
             if m > 0 and stages.missing & NEED_HOLD:
                 return i, n_rec, n_ev, MISSING
-            i_stop = min(i_end, next_rec)
             if m == 0:
+                i_stop = min(i_end, next_rec)
                 i_quiet, clear = model.fly(t0, dt, i, i_stop, q, qd, p, tol, clear, qb, qdb)
                 have_trial = True
                 if i_quiet > i:
                     ga_ok = False
+                    i = i_quiet
+                    if i == next_rec or i == n_total:
+                        record(model, t0 + i * dt, q, qd, p, n_rec, out, ws.box)
+                        n_rec += 1
+                        if i == next_rec:
+                            next_rec += record_every
+                    if i == i_end:
+                        break
+                if i_quiet == i_stop:    # stopped only to record: go on
+                    continue
             else:
-                i_quiet, trial_left = stages.hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws)
+                # (hold records the samples on its way: a call per sample cost more than the held step)
+                i_quiet, trial_left, n_rec = stages.hold(model, t0, dt, i, i_end, q, qd, p, tol, rest, m, ws, out,
+                                                         n_rec, record_every, n_total)
                 held_trial = trial_left == 1
                 ga_ok = True
                 if i_quiet > i:
                     for d in range(n):
                         if not (math.isfinite(q[d]) and math.isfinite(qd[d])):
                             return i_quiet, n_rec, n_ev, NONFINITE
-                    clear = model.clearance(t0 + i_quiet * dt, q, p, tol)
-            if i_quiet > i:
-                i = i_quiet
-                if i == next_rec or i == n_total:
-                    record(model, t0 + i * dt, q, qd, p, n_rec, out, ws.box)
-                    n_rec += 1
-                    if i == next_rec:
-                        next_rec += record_every
-                if i == i_end:
-                    break
-            if i_quiet == i_stop:    # stopped only to record: go on
-                continue
+                    i = i_quiet
+                    next_rec = (i // record_every + 1) * record_every
+                    if i == i_end:
+                        break
+                    clear = model.clearance(t0 + i * dt, q, p, tol)
         if rest[C + MODE_AT] > 0 and stages.missing & NEED_FALLBACK:
             return i, n_rec, n_ev, MISSING
         t = t0 + i * dt

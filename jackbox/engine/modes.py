@@ -100,11 +100,12 @@ def contact_accel(model, t, q, qd, p, m, a, ws):
         return
     winv = ws.n[WINV]
     model.inverse_mass(p, winv)
-    held_accel(model, t, q, qd, p, m, a, ws.k[RIDX], ws.jac, winv, ws.A, ws.lu, ws.c[RINV], ws.c[RHS], ws.c[LAM])
+    held_accel(model, t, q, qd, p, m, a, ws.k[RIDX], ws.jac, winv, ws.A, ws.lu, ws.c[RINV], ws.c[RHS], ws.c[LAM],
+               False)
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def held_accel(model, t, q, qd, p, m, a, ridx, jac, winv, A, L, rinv, y, lam):
+def held_accel(model, t, q, qd, p, m, a, ridx, jac, winv, A, L, rinv, y, lam, factored):
     """:func:`contact_accel` on the arrays themselves, ``winv = diag(M^-1)`` already filled.
 
     The held step's own coding (called by :func:`jackbox.engine.integrator.rk4_rows`):
@@ -114,18 +115,22 @@ def held_accel(model, t, q, qd, p, m, a, ridx, jac, winv, A, L, rinv, y, lam):
     (their Jacobian rows and biases only, each angle's sine and cosine once).
     y: the right-hand side, then the forward substitution's unknowns; lam:
     the forces; L, rinv: the factorization (:func:`~.impact.factor_rows`).
+    factored: L and rinv already hold the factorization of the rows at q
+    (:func:`settle_rows` left it), the same numbers this call would compute:
+    the rows are read again (their bias is of qd), the matrix is not.
     """
     model.accel(t, q, qd, p, a)
     model.contact_rows(t, q, qd, p, ridx, m, jac)
     n = model.n_dof
-    contact_matrix(jac, winv, ridx, m, A)
+    if not factored:
+        contact_matrix(jac, winv, ridx, m, A)
+        factor_rows(A, m, L, rinv)
     for i in range(m):
         k = ridx[i]
         s = jac[k, n + ROW_BIAS]
         for d in range(n):
             s += jac[k, d] * a[d]
         y[i] = -s
-    factor_rows(A, m, L, rinv)
     solve_rows(y, m, L, rinv, y, lam)
     add_response(jac, winv, ridx, m, lam, n, a)
 
@@ -145,22 +150,25 @@ def project_rest(model, t, q, qd, p, m, level, passes, ws):
     winv = ws.n[WINV]
     model.inverse_mass(p, winv)
     project_rows(model, t, q, qd, p, m, level, passes, ws.k[RIDX], ws.jac, winv, ws.A, ws.lu, ws.c[RINV], ws.c[RHS],
-                 ws.c[LAM])
+                 ws.c[LAM], False)
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def project_rows(model, t, q, qd, p, m, level, passes, ridx, jac, winv, A, L, rinv, y, x):
+def project_rows(model, t, q, qd, p, m, level, passes, ridx, jac, winv, A, L, rinv, y, x, factored):
     """:func:`project_rest` on the arrays themselves (``winv`` filled), like :func:`held_accel`.
 
     Each pass reads the held rows (gaps and Jacobian) from one call of the
-    model's ``contact_rows``; the rates are read at the corrected coordinates
-    by one more, and projected with the last pass's factorization.
+    model's ``contact_rows`` (factored: the first pass's rows and their
+    factorization are in jac, L and rinv already); the rates are read at the
+    corrected coordinates by one more, and projected with the last pass's
+    factorization.
     """
     n = model.n_dof
-    for _ in range(passes):
-        model.contact_rows(t, q, qd, p, ridx, m, jac)
-        contact_matrix(jac, winv, ridx, m, A)
-        factor_rows(A, m, L, rinv)
+    for j in range(passes):
+        if j > 0 or not factored:
+            model.contact_rows(t, q, qd, p, ridx, m, jac)
+            contact_matrix(jac, winv, ridx, m, A)
+            factor_rows(A, m, L, rinv)
         for i in range(m):
             y[i] = -(jac[ridx[i], n + ROW_GAP] + level)
         solve_rows(y, m, L, rinv, y, x)
@@ -170,6 +178,44 @@ def project_rows(model, t, q, qd, p, m, level, passes, ridx, jac, winv, A, L, ri
         y[i] = -jac[ridx[i], n + ROW_RATE]
     solve_rows(y, m, L, rinv, y, x)
     add_response(jac, winv, ridx, m, x, n, qd)
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def settle_rest(model, t, q, qd, p, m, level, drift, dt, ws):
+    """:func:`settle_rows` on the scratch record (``winv`` filled here)."""
+    winv = ws.n[WINV]
+    model.inverse_mass(p, winv)
+    return settle_rows(model, t, q, qd, p, m, level, drift, dt, ws.k[RIDX], ws.jac, winv, ws.A, ws.lu, ws.c[RINV],
+                       ws.c[RHS], ws.c[LAM])
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def settle_rows(model, t, q, qd, p, m, level, drift, dt, ridx, jac, winv, A, L, rinv, y, x):
+    """The held rows back on their level after a held step of length dt without events.
+
+    Reads the rows at (t, q, qd) and factors them. Where every held gap is
+    within ``drift`` of -level and no rate would move it by more in the next
+    step (RK4's drift is O(dt^5): at rest, or riding a shaken box, it is
+    round-off), only the rates are projected, with that factorization, which
+    is left (in L and rinv) for the next step's first stage: returns True
+    (see :func:`held_accel`). Otherwise one Newton pass of
+    :func:`project_rows` from those rows, which moves q: False. A full
+    projection after every step made a held step cost a third more.
+    """
+    n = model.n_dof
+    model.contact_rows(t, q, qd, p, ridx, m, jac)
+    contact_matrix(jac, winv, ridx, m, A)
+    factor_rows(A, m, L, rinv)
+    for i in range(m):
+        k = ridx[i]
+        if not (abs(jac[k, n + ROW_GAP] + level) <= drift and abs(jac[k, n + ROW_RATE]) * dt <= drift):
+            project_rows(model, t, q, qd, p, m, level, np.int64(1), ridx, jac, winv, A, L, rinv, y, x, True)
+            return False
+    for i in range(m):
+        y[i] = -jac[ridx[i], n + ROW_RATE]
+    solve_rows(y, m, L, rinv, y, x)
+    add_response(jac, winv, ridx, m, x, n, qd)
+    return True
 
 
 @njit(cache=True, no_cpython_wrapper=True)

@@ -87,6 +87,10 @@ T_SPEED = 8     #: T_SPEED + i: bound on |d gap / d qd_i| (1 or a radius); the l
 #: a gap this fraction of T_EVENT above its level is at it (gaps of order L carry round-off of about
 #: 1e-16 L): event location stops there, and a bounce whose flight would rise less is at rest
 GAP_ROUNDOFF = 1e-3
+#: a held gap within this many T_EVENT of its level, with a rate that moves it by less in a step, is
+#: not projected after a quiet held step (jackbox.engine.modes.settle_rows): a quarter of GAP_ROUNDOFF,
+#: about one unit in the last place of the box's size
+DRIFT = 2.5e-4
 
 # ---------------------------------------------------------------------------
 # the model record
@@ -227,9 +231,10 @@ UpdateType = types.FunctionType(UPDATE)
 #: one step of the fallback: (model, update, t, h, q, qd, p, tol, rest, ws, log, n_ev) -> (n_ev, m)
 FALLBACK_STEP = types.UniTuple(I8, 2)(ModelType, UpdateType, F8, F8, V1, V1, V1, V1, I1, ScratchType, EventsType,
                                       I8)
-#: quiet steps with the persistent contacts held: (model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws)
-#: -> (step reached, whether the trial of the step it stopped before is in the scratch)
-HOLD = types.UniTuple(I8, 2)(ModelType, F8, F8, I8, I8, V1, V1, V1, V1, I1, I8, ScratchType)
+#: quiet steps with the persistent contacts held, recording the samples on the way: (model, t0, dt, i,
+#: i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, record_every, n_total) -> (step reached, whether the
+#: trial of the step it stopped before is in the scratch, n_rec)
+HOLD = types.UniTuple(I8, 3)(ModelType, F8, F8, I8, I8, V1, V1, V1, V1, I1, I8, ScratchType, SamplesType, I8, I8, I8)
 #: the heavy stages of the exact loop, as function values, and which of them are not compiled (NEED_* bits)
 Stages = namedtuple("Stages", ["step", "update", "crossing", "release", "fallback", "hold", "missing"])
 StagesType = types.NamedTuple([StepType, UpdateType, types.FunctionType(CROSSING), types.FunctionType(RELEASE_AT),
