@@ -92,6 +92,32 @@ def test_a_held_stretch_resumed_at_any_step_gives_the_same_numbers(monkeypatch):
         np.testing.assert_array_equal(getattr(whole, key), getattr(pieces, key), err_msg=key)
 
 
+@pytest.mark.parametrize("name", ["hand", "shaken"])
+def test_every_sample_is_the_state_its_model_describes(name, all_scenes):
+    # Samples are written by the free-flight loop (the model's fly, on tuples),
+    # the held loop and the exact loop's own steps: each row must be the recorded
+    # time's box pose (a prescribed box's from its motion) and the energy of the
+    # recorded state, whichever loop wrote it
+    from jackbox import loader
+
+    scene = all_scenes[name]
+    traj = jackbox.simulate(scene, t_end=1.0)
+    kernel = loader.kernel_for(scene)
+    run = api.prepare(scene)
+    prescribed = bool(kernel.PRESCRIBED)
+    jack = slice(3, 6) if prescribed else slice(0, 6)
+    box = np.empty(6)
+    for n in range(0, len(traj.t), 7):
+        t = traj.t[n]
+        if prescribed:
+            kernel.jit("box_motion")(t, run.p, box)
+            np.testing.assert_allclose(traj.q[n, :3], box[:3], rtol=1e-15, atol=1e-15)
+            np.testing.assert_allclose(traj.qd[n, :3], box[3:], rtol=1e-15, atol=1e-15)
+        energy = kernel.jit("energy")(t, traj.q[n, jack].copy(), traj.qd[n, jack].copy(), run.p)
+        assert abs(traj.energy[n] - energy) <= 1e-14 * max(1.0, abs(energy)), (n, traj.energy[n], energy)
+    assert np.ptp(traj.q[:, 0 if prescribed else 3]) > 1e-3      # (it moved)
+
+
 def test_record_every_keeps_every_kth_step_and_the_last():
     full = jackbox.simulate("spring", t_end=0.1)
     thin = jackbox.simulate("spring", t_end=0.1, record_every=7)

@@ -393,24 +393,17 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
             # held contacts. Each stops before a step that needs care, its trial in qb, qdb.
             if m > 0 and stages.missing & NEED_HOLD:
                 return i, n_rec, n_ev, MISSING
-            if m == 0:
-                i_stop = min(i_end, next_rec)
-                i_quiet, clear = model.fly(t0, dt, i, i_stop, q, qd, p, tol, clear, qb, qdb)
+            if m == 0:      # (fly and hold record the samples on their way: a call per sample cost a step)
+                i_quiet, clear, n_rec = model.fly(t0, dt, i, i_end, q, qd, p, tol, clear, qb, qdb, out.t, out.q,
+                                                  out.qd, out.energy, n_rec, next_rec, record_every, n_total)
                 have_trial = True
                 if i_quiet > i:
                     ga_ok = False
                     i = i_quiet
-                    if i == next_rec or i == n_total:
-                        record(model, t0 + i * dt, q, qd, p, n_rec, out, ws.box)
-                        n_rec += 1
-                        if i == next_rec:
-                            next_rec += record_every
+                    next_rec = (i // record_every + 1) * record_every
                     if i == i_end:
                         break
-                if i_quiet == i_stop:    # stopped only to record: go on
-                    continue
             else:
-                # (hold records the samples on its way: a call per sample cost more than the held step)
                 i_quiet, trial_left, n_rec = stages.hold(model, t0, dt, i, i_end, q, qd, p, tol, rest, m, ws, out,
                                                          n_rec, record_every, n_total)
                 held_trial = trial_left == 1
