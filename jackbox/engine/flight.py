@@ -99,28 +99,39 @@ def fly(t0, dt, i, i_stop, q_io, qd_io, p, tol, clear, qn_out, vn_out, rec_t, re
     qn, vn = q, qd
     tt = accel_time_s(t0 + i * dt, p)
     sa = _speed_bound(qd, tol)
-    while i < i_stop:
-        t_next = t0 + (i + 1) * dt
-        qn, vn, tt_next = grid_step(t0 + i * dt, t_next, tt, q, qd, dt, p)
-        sb = _speed_bound(vn, tol)
-        band = dt * max(sa, sb) + margin      # step_reach(qd, vn, dt, tol) - T_EVENT / 2
-        if not clear >= band:        # (also stops on a non-finite state)
-            break
-        if BROAD_PHASE:
-            c = clear - band
-            if c < band:
-                c = clearance_s(t_next, qn, p, tol)
-        else:                        # every gap row, every step
-            g = phi_s(t_next, qn, p)
-            c = g[0]
-            for k in range(1, N_CONTACT):
-                c = min(c, g[k])
-        if not c >= band:
-            break
-        q, qd, clear, tt, sa = qn, vn, c, tt_next, sb
-        i += 1
+    quiet = True
+    while quiet and i < i_stop:
+        # steps to the next sample (a negative next_rec or n_total: none), then the sample: the
+        # step loop itself tests nothing but the state (a test per step there cost 10-15%)
+        seg = i_stop
+        if i < next_rec < seg:
+            seg = next_rec
+        if i < n_total < seg:
+            seg = n_total
+        while i < seg:
+            t_next = t0 + (i + 1) * dt
+            qn, vn, tt_next = grid_step(t0 + i * dt, t_next, tt, q, qd, dt, p)
+            sb = _speed_bound(vn, tol)
+            band = dt * max(sa, sb) + margin      # step_reach(qd, vn, dt, tol) - T_EVENT / 2
+            if not clear >= band:        # (also stops on a non-finite state)
+                quiet = False
+                break
+            if BROAD_PHASE:
+                c = clear - band
+                if c < band:
+                    c = clearance_s(t_next, qn, p, tol)
+            else:                        # every gap row, every step
+                g = phi_s(t_next, qn, p)
+                c = g[0]
+                for k in range(1, N_CONTACT):
+                    c = min(c, g[k])
+            if not c >= band:
+                quiet = False
+                break
+            q, qd, clear, tt, sa = qn, vn, c, tt_next, sb
+            i += 1
         if i == next_rec or i == n_total:
-            record_s(t_next, q, qd, p, n_rec, rec_t, rec_q, rec_qd, rec_e)
+            record_s(t0 + i * dt, q, qd, p, n_rec, rec_t, rec_q, rec_qd, rec_e)
             n_rec += 1
             if i == next_rec:
                 next_rec += record_every
@@ -148,14 +159,15 @@ def record_s(t, q, qd, p, n, rec_t, rec_q, rec_qd, rec_e):
     rec_e[n] = energy(t, q, qd, p)
 
 
-def free_step(t, q_in, qd_in, dt, p, q_out, qd_out):
-    """One RK4 step of free flight from t of length dt, on floats (the naive method's step).
+def free_step(t, t_next, q_in, qd_in, dt, p, q_out, qd_out):
+    """One RK4 step of free flight from t to t_next (dt apart) on floats: the naive method's step, and the exact one's near a wall.
 
-    The stage times are those of the engine's step (t, t + dt/2, t + dt), so
-    the two codings of the tableau give the same numbers.
+    The stage times are t, t + dt/2 and t_next, as in :func:`fly` (t_next the
+    grid's ``t0 + (i + 1) dt``): from the same state the two give the same
+    numbers, so a step does not depend on which of them took it.
     """
     q, qd = tuple_of(q_in), tuple_of(qd_in)
-    qn, vn, _ = grid_step(t, t + _NODES[3] * dt, accel_time_s(t, p), q, qd, dt, p)
+    qn, vn, _ = grid_step(t, t_next, accel_time_s(t, p), q, qd, dt, p)
     for d in range(N_DOF):
         q_out[d] = qn[d]
         qd_out[d] = vn[d]

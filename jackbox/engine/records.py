@@ -115,7 +115,7 @@ SIGNATURES = {
     "box_motion": types.void(F8, V1, V1),                     # (t, p, out)
     # the hot path (jackbox/engine/flight.py, compiled with the model)
     "clearance": F8(F8, V1, V1, V1),                          # (t, q, p, tol)
-    "free_step": types.void(F8, V1, V1, F8, V1, V1, V1),      # (t, q, qd, dt, p, q_out, qd_out)
+    "free_step": types.void(F8, F8, V1, V1, F8, V1, V1, V1),  # (t, t_next, q, qd, dt, p, q_out, qd_out)
     # (t0, dt, i, i_stop, q, qd, p, tol, clear, q_out, qd_out, rec_t, rec_q, rec_qd, rec_energy, n_rec, next_rec,
     # record_every, n_total) -> (i, clear, n_rec)
     "fly": types.Tuple((I8, F8, I8))(F8, F8, I8, I8, V1, V1, V1, V1, F8, V1, V1, V1, V2, V2, V1, I8, I8, I8, I8),
