@@ -267,8 +267,7 @@ def _binding_parts(model_text: str, flight_text: str, lanes_text: str, digest: s
             + "\n\n\n".join(blocks[i][1] for i in chosen) + "\n\n\n"
             + ("from numba import njit as _njit\n" if names & set(_JITTED) else "")
             + "from jackbox.engine import bind_part as _bind_part\n\n"
-            + "".join(f"{name} = _njit(cache=True{_JITTED[name]})({name})\n" for name in _JITTED
-                      if name in names and name not in entries)
+            + "".join(f"{name} = _njit(cache=True{_JITTED[name]})({name})\n" for name in _JITTED if name in names)
             + "COMPILED = {" + ", ".join(f"{entry!r}: _bind_part({entry!r}, {entry})" for entry in entries) + "}\n"
         )
     return parts
@@ -292,9 +291,8 @@ def part_entries() -> dict[str, tuple[str, ...]]:
 
 
 #: the helpers of the hot path a part compiles as njit functions (callees inlined by LLVM, or
-#: by Numba where marked), with their options (not in the part whose entry one is: ``energy``)
-_JITTED = {**{name: "" for name in ("tuple_of", "accel_s", "accel_time_s", "box_motion_s", "axpy_s", "wsum_s",
-                                    "energy")},
+#: by Numba where marked), with their options
+_JITTED = {**{name: "" for name in ("tuple_of", "accel_s", "accel_time_s", "box_motion_s", "axpy_s", "wsum_s")},
            **{name: ', inline="always"' for name in INLINED + LANES_INLINED},
            # a lane near a wall (lanes.calm): phi_s and gap_rate_s inlined, so that LLVM computes the sine
            # and cosine of each angle once for both; no references counted (calm allocates nothing)

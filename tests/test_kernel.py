@@ -248,7 +248,7 @@ def test_a_step_near_a_wall_is_the_step_fly_would_take():
         qa, qda, qb, qdb = q.copy(), qd.copy(), q.copy(), qd.copy()
         rows = np.zeros((2, 6))
         stop, _, _ = model.fly(0.0, dt, i, i + 1, qa, qda, p, tol, np.inf, q.copy(), qd.copy(), rows[0], rows,
-                               rows, rows[1], 0, -1, 1, -1)
+                               rows, 0, -1, 1, -1)
         model.free_step(i * dt, (i + 1) * dt, q, qd, dt, p, qb, qdb)
         return stop, qa, qda, qb, qdb
 

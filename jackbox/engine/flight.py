@@ -3,7 +3,7 @@
 This file is not imported as it stands: :func:`jackbox.loader.binding_parts`
 copies the pieces of it a function reaches into that function's binding
 part, after the generated model's tuple functions (``accel_s``,
-``accel_time_s``, ``phi_s``, ``box_motion_s``, ``energy``) and constants (``N_DOF``,
+``accel_time_s``, ``phi_s``, ``box_motion_s``) and constants (``N_DOF``,
 ``N_CONTACT``, ``PRESCRIBED``, ``HAS_GROUND``) it calls, so that they are
 globals of the same file, inlined, with the state in registers. :func:`fly`
 and :func:`free_step` are compiled together (one part, "flight"),
@@ -79,7 +79,7 @@ def clearance(t, q, p, tol):
     return c
 
 
-def fly(t0, dt, i, i_stop, q_io, qd_io, p, tol, clear, qn_out, vn_out, rec_t, rec_q, rec_qd, rec_e, n_rec, next_rec,
+def fly(t0, dt, i, i_stop, q_io, qd_io, p, tol, clear, qn_out, vn_out, rec_t, rec_q, rec_qd, n_rec, next_rec,
         record_every, n_total):
     """Steps i, i+1, ... of free flight while the broad phase shows them quiet, recording the samples on the way.
 
@@ -90,9 +90,9 @@ def fly(t0, dt, i, i_stop, q_io, qd_io, p, tol, clear, qn_out, vn_out, rec_t, re
     might come near contact or at i_stop. q_io, qd_io: the state, updated;
     qn_out, vn_out: the trial state of the step it stopped before (the caller
     need not redo it). The samples at step next_rec, next_rec + record_every,
-    ... and n_total go into the rec_* rows from n_rec (:func:`record_s`):
-    returning to the caller for each cost as much as a step. Returns ``(i,
-    clear, n_rec)``.
+    ... and n_total go into the rec_* rows from n_rec (:func:`record_s`; the
+    caller completes them): returning to the caller for each cost as much as
+    a step. Returns ``(i, clear, n_rec)``.
     """
     q, qd = tuple_of(q_io), tuple_of(qd_io)
     margin = tol[_T_GAP] - 0.5 * tol[_T_EVENT]
@@ -131,7 +131,7 @@ def fly(t0, dt, i, i_stop, q_io, qd_io, p, tol, clear, qn_out, vn_out, rec_t, re
             q, qd, clear, tt, sa = qn, vn, c, tt_next, sb
             i += 1
         if i == next_rec or i == n_total:
-            record_s(t0 + i * dt, q, qd, p, n_rec, rec_t, rec_q, rec_qd, rec_e)
+            record_s(t0 + i * dt, q, qd, n_rec, rec_t, rec_q, rec_qd)
             n_rec += 1
             if i == next_rec:
                 next_rec += record_every
@@ -143,20 +143,17 @@ def fly(t0, dt, i, i_stop, q_io, qd_io, p, tol, clear, qn_out, vn_out, rec_t, re
     return i, clear, n_rec
 
 
-def record_s(t, q, qd, p, n, rec_t, rec_q, rec_qd, rec_e):
-    """Sample n at time t: the engine's :func:`jackbox.engine.loop.record` on tuples (the same numbers)."""
+def record_s(t, q, qd, n, rec_t, rec_q, rec_qd):
+    """Sample n at time t: the time and the integrated coordinates and rates (after a prescribed box's three).
+
+    The box's columns and the energy are the caller's (:func:`jackbox.engine.loop.complete_samples`,
+    with the model's own functions): they would compile them into the hot path of every model.
+    """
     rec_t[n] = t
-    off = 0
-    if PRESCRIBED:
-        box = box_motion_s(t, p)
-        for k in range(3):
-            rec_q[n, k] = box[k]
-            rec_qd[n, k] = box[3 + k]
-        off = 3
+    off = 3 if PRESCRIBED else 0
     for d in range(N_DOF):
         rec_q[n, off + d] = q[d]
         rec_qd[n, off + d] = qd[d]
-    rec_e[n] = energy(t, q, qd, p)
 
 
 def free_step(t, t_next, q_in, qd_in, dt, p, q_out, qd_out):

@@ -268,7 +268,7 @@ def member_fly(model, q, qd, rest, p, tol, tally, state, dt, n_steps, sample_ste
     end = min(stop, i + CHUNK)
     never = np.int64(-1)        # (the member's samples are its own: arrive)
     i, _, _ = model.fly(0.0, dt, i, end, q, qd, p, tol, model.clearance(i * dt, q, p, tol), qb, qdb, out.t, out.q,
-                        out.qd, out.energy, np.int64(0), never, np.int64(1), never)
+                        out.qd, np.int64(0), never, np.int64(1), never)
     state[AT_STEP] = i
     if i == stop:
         arrive(model, i * dt, q, qd, p, state, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, out, box)

@@ -49,6 +49,28 @@ from .gaps import step_reach
 
 
 @njit(cache=True, no_cpython_wrapper=True)
+def complete_samples(model, p, out, n0, n1, ws):
+    """The box's columns (a prescribed box) and the energy of samples n0..n1-1, recorded by the model's fly.
+
+    The same numbers as :func:`record` (the same functions of the same state).
+    """
+    off = 0
+    if model.prescribed:
+        off = 3
+        for k in range(n0, n1):
+            model.box_motion(out.t[k], p, ws.box)
+            for i in range(3):
+                out.q[k, i] = ws.box[i]
+                out.qd[k, i] = ws.box[3 + i]
+    qs, qds = ws.n[QS], ws.n[QDS]
+    for k in range(n0, n1):
+        for i in range(model.n_dof):
+            qs[i] = out.q[k, off + i]
+            qds[i] = out.qd[k, off + i]
+        out.energy[k] = model.energy(out.t[k], qs, qds, p)
+
+
+@njit(cache=True, no_cpython_wrapper=True)
 def record(model, t, q, qd, p, n, out, box):
     """Store sample n of ``out`` (a Samples record): time, the 6 coordinates and rates, the energy."""
     out.t[n] = t
@@ -399,9 +421,12 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
             if m > 0 and stages.missing & NEED_HOLD:
                 return i, n_rec, n_ev, MISSING
             if m == 0:      # (fly and hold record the samples on their way: a call per sample cost a step)
+                n0 = n_rec
                 i_quiet, clear, n_rec = model.fly(t0, dt, i, i_end, q, qd, p, tol, clear, qb, qdb, out.t, out.q,
-                                                  out.qd, out.energy, n_rec, next_rec, record_every, n_total)
+                                                  out.qd, n_rec, next_rec, record_every, n_total)
                 have_trial = True
+                if n_rec > n0:
+                    complete_samples(model, p, out, n0, n_rec, ws)
                 if i_quiet > i:
                     ga_ok = False
                     i = i_quiet

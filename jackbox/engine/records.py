@@ -116,9 +116,9 @@ SIGNATURES = {
     # the hot path (jackbox/engine/flight.py, compiled with the model)
     "clearance": F8(F8, V1, V1, V1),                          # (t, q, p, tol)
     "free_step": types.void(F8, F8, V1, V1, F8, V1, V1, V1),  # (t, t_next, q, qd, dt, p, q_out, qd_out)
-    # (t0, dt, i, i_stop, q, qd, p, tol, clear, q_out, qd_out, rec_t, rec_q, rec_qd, rec_energy, n_rec, next_rec,
+    # (t0, dt, i, i_stop, q, qd, p, tol, clear, q_out, qd_out, rec_t, rec_q, rec_qd, n_rec, next_rec,
     # record_every, n_total) -> (i, clear, n_rec)
-    "fly": types.Tuple((I8, F8, I8))(F8, F8, I8, I8, V1, V1, V1, V1, F8, V1, V1, V1, V2, V2, V1, I8, I8, I8, I8),
+    "fly": types.Tuple((I8, F8, I8))(F8, F8, I8, I8, V1, V1, V1, V1, F8, V1, V1, V1, V2, V2, I8, I8, I8, I8),
     # an ensemble block's lanes (jackbox/engine/lanes.py, compiled with the model when a study needs it)
     "lanes": I8(F8, F8, I8, I8, V1, V1, V1, I1, I1),             # (t0, dt, i, i_stop, S, p, tol, live, quiet)
 }
