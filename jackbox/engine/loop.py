@@ -37,7 +37,7 @@ from numba import njit
 
 from .impact import resolve_impacts
 from .integrator import held_passes, rk4_rows
-from .modes import log_event, rest_index, settle_rest, settle_rows
+from .modes import log_event, project_rest, rest_index, settle_rows
 from .records import (DONE, DRIFT, EXACT_AT, FALLBACK, FLAGS, GA, GB, HANDOFF, HANDOFF_AT, HANDOFF_EVENTS,
                       HANDOFF_MODES, HANDOFF_STUCK, HANDOFF_ZENO, IMPACT_LOG_FULL, LAM, LS, MAX_EVENTS,
                       MISSING, MODE_AT, MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT, NEED_FALLBACK, NEED_HOLD,
@@ -158,7 +158,6 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
     n = model.n_dof
     C = model.n_contact
     level = 0.5 * tol[T_EVENT]
-    t_begin = ta
     target = tb
     releasing = False
     watch_release = True     # off for the rest of the step once a release changed nothing
@@ -227,8 +226,8 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
             q[d] = qb[d]
             qd[d] = qdb[d]
         ta = target
-        if m > 0:       # (as hold does: the same numbers whichever loop takes a quiet held step)
-            settle_rest(model, ta, q, qd, p, m, level, DRIFT * tol[T_EVENT], tb - t_begin, ws)
+        if m > 0:
+            project_rest(model, ta, q, qd, p, m, level, np.int64(1), ws)
             model.phi(ta, q, p, ga)
         else:
             for k in range(C):
@@ -249,10 +248,14 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
     """Steps i, i+1, ... with the m persistent contacts held, while nothing happens in them.
 
     The resting counterpart of the model's ``fly``: one call for a stretch of
-    quiet steps, each the same arithmetic as :func:`advance` on a step with no
+    quiet steps, each the arithmetic of :func:`advance` on a step with no
     event (:func:`~.integrator.rk4`, the release screen of
     :func:`~.events.first_release`, the near test of
-    :func:`~.events.first_crossing`, :func:`~.modes.settle_rows`),
+    :func:`~.events.first_crossing`) but for its end: :func:`~.modes.settle_rows`
+    projects the gaps only where they drifted past round-off and hands its
+    factorization to the next step, where advance projects every time (the
+    same in advance cost a second of the first run's compiling; the two
+    differ at round-off, and which loop takes a step depends on the state alone),
     on the scratch's arrays taken out once: each of those calls would pass
     the model and scratch records, some hundred and fifty words, which cost
     more than a held step's own solves. Stops at i_stop, or before a step

@@ -181,15 +181,6 @@ def project_rows(model, t, q, qd, p, m, level, passes, ridx, jac, winv, A, L, ri
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def settle_rest(model, t, q, qd, p, m, level, drift, dt, ws):
-    """:func:`settle_rows` on the scratch record (``winv`` filled here)."""
-    winv = ws.n[WINV]
-    model.inverse_mass(p, winv)
-    return settle_rows(model, t, q, qd, p, m, level, drift, dt, ws.k[RIDX], ws.jac, winv, ws.A, ws.lu, ws.c[RINV],
-                       ws.c[RHS], ws.c[LAM])
-
-
-@njit(cache=True, no_cpython_wrapper=True)
 def settle_rows(model, t, q, qd, p, m, level, drift, dt, ridx, jac, winv, A, L, rinv, y, x):
     """The held rows back on their level after a held step of length dt without events.
 
