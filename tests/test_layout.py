@@ -136,3 +136,23 @@ def test_a_plain_install_ships_every_package_of_the_checkout():
         shipped = {name for name in here if any(fnmatch.fnmatchcase(name, pattern)
                                                 for pattern in packages["find"]["include"])}
     assert "jackbox.engine" in here and here <= shipped, here - shipped
+
+
+def test_no_engine_function_is_called_with_a_literal_number_or_truth_value():
+    # Numba compiles an njit function again for each literal argument it is
+    # called with (f(x, False) and f(x, flag) are two compiles, so are
+    # run_segment(..., 0, ...) and (..., 1, ...)): a literal handed to an engine
+    # function costs a compile of it and of everything it inlines. Constants go
+    # in typed (np.int64(0), np.bool_(False)); calls through the model's and the
+    # stages' function values are typed by their signatures and are not looked at
+    engine = Path(jackbox.__file__).parent / "engine"
+    trees = {path.name: ast.parse(path.read_text(encoding="utf-8")) for path in sorted(engine.glob("*.py"))}
+    jitted = {node.name for tree in trees.values() for node in ast.walk(tree)
+              if isinstance(node, ast.FunctionDef) and any("njit" in ast.unparse(d) for d in node.decorator_list)}
+    assert {"run_segment", "held_accel", "project_rows", "rk4_rows", "log_event"} <= jitted
+    found = [f"{name}:{node.lineno} {node.func.id}({ast.unparse(arg)})"
+             for name, tree in trees.items() for node in ast.walk(tree)
+             if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in jitted
+             for arg in node.args
+             if isinstance(arg, ast.Constant) and isinstance(arg.value, (bool, int))]
+    assert not found, "literal arguments to engine functions: " + ", ".join(found)

@@ -265,7 +265,7 @@ def fallback_step(model, update, t, h, q, qd, p, tol, rest, ws, log, n_ev):
     rest[C + MODE_AT] = 0
     rest[C + SET_AT] = 0
     t_next = t + h
-    n_ev = log_event(t_next, 0, np.int64(FALLBACK), log, n_ev)
+    n_ev = log_event(t_next, np.int64(0), np.int64(FALLBACK), log, n_ev)
     if mask:
         for k in range(C):
             rest[k] = mask >> k & 1

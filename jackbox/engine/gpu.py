@@ -225,7 +225,7 @@ def next_stop(state, sample_steps, n_steps):
 
 def arrive(model, t, q, qd, p, state, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, out, box):
     """A member at its next stop: its state recorded (as the exact loop records it) into its sample and final rows."""
-    record(model, t, q, qd, p, 0, out, box)
+    record(model, t, q, qd, p, np.int64(0), out, box)
     s = state[AT_SAMPLE]
     if s < sample_steps.shape[0] and sample_steps[s] == state[AT_STEP]:
         copy_to(samp_q[s], out.q[0])
@@ -282,7 +282,7 @@ def member_alone(model, exact, stages, q, qd, rest, p, tol, tally, state, dt, n_
     i = state[AT_STEP]
     stop = next_stop(state, sample_steps, n_steps)
     end = min(stop, i + (ALONE if is_free(rest, model.n_contact) else CHUNK))
-    i, _, status, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, end, out, 1, log, tally)
+    i, _, status, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, end, out, np.int64(1), log, tally)
     state[AT_STEP], state[AT_STATUS] = i, status
     if status == DONE and i == stop:
         arrive(model, i * dt, q, qd, p, state, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, out, stages.ws.box)

@@ -10,6 +10,8 @@ give the same numbers bit for bit (tests/test_engine.py checks it).
 
 import math
 
+import numpy as np
+
 from numba import njit
 
 from .modes import held_accel
@@ -42,7 +44,7 @@ def rk4(model, t, q, qd, dt, p, q_out, qd_out, m, ws):
     if m > 0:
         model.inverse_mass(p, winv)
     rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, ws.work, ws.c[LS:LS + 4], ws.k[RIDX], ws.jac, winv,
-             ws.A, ws.lu, ws.c[RINV], ws.c[RHS], ws.c[LAM], ws.k[FLAGS, PASSES_AT], False)
+             ws.A, ws.lu, ws.c[RINV], ws.c[RHS], ws.c[LAM], ws.k[FLAGS, PASSES_AT], np.bool_(False))
 
 
 #: a step with held contacts turns its fastest angle by at most this much (rad) in one RK4 pass;

@@ -139,7 +139,7 @@ def run_member(model, exact, stages, q0, qd0, p, tol, dt, n_steps, sample_steps,
     the fallback, solver warnings].
     """
     follow_member(model, exact, stages, q0.copy(), qd0.copy(), new_modes(model), p, tol, dt, n_steps, sample_steps,
-                  samp_q, samp_qd, fin_q, fin_qd, fin, new_log(LOG_SIZE), new_samples(2), new_tally())
+                  samp_q, samp_qd, fin_q, fin_qd, fin, new_log(LOG_SIZE), new_samples(np.int64(2)), new_tally())
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -149,7 +149,8 @@ def start_member(model, exact, stages, q, qd, rest, p, tol, dt, sample_steps, sa
     its final row so far. Returns ``(step reached, status, next sample, log)``."""
     clear_modes(rest)
     clear_tally(tally)
-    i, _, status, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, 0, 0, out, 0, log, tally)
+    zero = np.int64(0)
+    i, _, status, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, zero, zero, out, zero, log, tally)
     s = 0
     if s < sample_steps.shape[0] and sample_steps[s] == 0:
         copy_to(samp_q[s], out.q[0])
@@ -170,7 +171,8 @@ def follow_member(model, exact, stages, q, qd, rest, p, tol, dt, n_steps, sample
                                      fin_q, fin_qd, fin, log, out, tally)
     while status == DONE and i < n_steps:
         stop = sample_steps[s] if s < sample_steps.shape[0] else n_steps
-        i, n_rec, status, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, stop, out, 1, log, tally)
+        i, n_rec, status, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, stop, out, np.int64(1),
+                                            log, tally)
         if status != DONE:
             break
         if s < sample_steps.shape[0] and stop == sample_steps[s]:
@@ -225,7 +227,7 @@ def run_twins(model, exact, stages, q0, qd0, dq, dqd, p, tol, dt, n_steps, renor
     """
     follow_twins(model, exact, stages, q0.copy(), qd0.copy(), q0.copy(), qd0.copy(), dq, dqd, p, tol, dt, n_steps,
                  renorm_steps, scale, stretch, fin, new_modes(model), new_modes(model), new_log(LOG_SIZE),
-                 new_log(LOG_SIZE), new_samples(2), new_tally(), new_tally())
+                 new_log(LOG_SIZE), new_samples(np.int64(2)), new_tally(), new_tally())
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -378,7 +380,8 @@ def new_block(model):
 def start_lane(model, exact, stages, B, lane, q, qd, p, tol, dt, out, log):
     """Lane ``lane`` of block B from (q, qd): its contact set found and its start recorded into ``out`` (step 0)."""
     copy_to(B.tallies[lane], new_tally())
-    i, _, st, log = run_segment(model, exact, stages, q, qd, B.rests[lane], p, tol, dt, 0, 0, out, 0, log,
+    zero = np.int64(0)
+    i, _, st, log = run_segment(model, exact, stages, q, qd, B.rests[lane], p, tol, dt, zero, zero, out, zero, log,
                                 B.tallies[lane])
     B.status[lane] = st
     B.reached[lane] = i
@@ -470,7 +473,7 @@ def run_block(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, 
     W, n = LANES, 6
     B = new_block(model)
     q, qd = np.empty(n), np.empty(n)
-    out = new_samples(2)
+    out = new_samples(np.int64(2))
     log = new_log(LOG_SIZE)
     n_samples = sample_steps.shape[0]
     at_zero = n_samples > 0 and sample_steps[0] == 0
@@ -530,7 +533,7 @@ def run_block(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, 
 def alone_to(model, exact, stages, B, lane, p, tol, dt, i, end, out, log):
     """Member ``lane`` of block B alone through the exact loop from step i to end (its state in B.held_q, B.held_qd)."""
     k, _, st, log = run_segment(model, exact, stages, B.held_q[lane], B.held_qd[lane], B.rests[lane], p, tol, dt, i,
-                                end, out, 1, log, B.tallies[lane])
+                                end, out, np.int64(1), log, B.tallies[lane])
     if st != DONE:
         B.alive[lane], B.status[lane], B.reached[lane] = 0, st, k
     return log
@@ -573,7 +576,7 @@ def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, dt, n_steps, 
     n, C = 6, model.n_contact
     B = new_block(model)
     q, qd, qt, qdt = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-    out = new_samples(2)
+    out = new_samples(np.int64(2))
     log = new_log(LOG_SIZE)
     kept = np.empty((PAIRS, TALLY))          # each twin's tally at the interval's start
     d0 = np.empty(PAIRS)

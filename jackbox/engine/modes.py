@@ -101,7 +101,7 @@ def contact_accel(model, t, q, qd, p, m, a, ws):
     winv = ws.n[WINV]
     model.inverse_mass(p, winv)
     held_accel(model, t, q, qd, p, m, a, ws.k[RIDX], ws.jac, winv, ws.A, ws.lu, ws.c[RINV], ws.c[RHS], ws.c[LAM],
-               False)
+               np.bool_(False))
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -150,7 +150,7 @@ def project_rest(model, t, q, qd, p, m, level, passes, ws):
     winv = ws.n[WINV]
     model.inverse_mass(p, winv)
     project_rows(model, t, q, qd, p, m, level, passes, ws.k[RIDX], ws.jac, winv, ws.A, ws.lu, ws.c[RINV], ws.c[RHS],
-                 ws.c[LAM], False)
+                 ws.c[LAM], np.bool_(False))
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -200,7 +200,7 @@ def settle_rows(model, t, q, qd, p, m, level, drift, dt, ridx, jac, winv, A, L, 
     for i in range(m):
         k = ridx[i]
         if not (abs(jac[k, n + ROW_GAP] + level) <= drift and abs(jac[k, n + ROW_RATE]) * dt <= drift):
-            project_rows(model, t, q, qd, p, m, level, np.int64(1), ridx, jac, winv, A, L, rinv, y, x, True)
+            project_rows(model, t, q, qd, p, m, level, np.int64(1), ridx, jac, winv, A, L, rinv, y, x, np.bool_(True))
             return False
     for i in range(m):
         y[i] = -jac[ridx[i], n + ROW_RATE]
