@@ -1,6 +1,7 @@
 """Persistent multi-contact: the studies that used to stall, low restitution, resting steps.
 
     python benchmarks/contact.py [--members 2000] [--repeat 3] [--quick] [--out benchmarks/results]
+                                 [--against CHECKOUT]
 
 Measures, for the issue "Contact that never gives up":
 
@@ -13,7 +14,9 @@ Measures, for the issue "Contact that never gives up":
 * **restitution**: shaken and spring for 10 s at e in {0, 0.025, 0.1, 0.2,
   0.5, 1}: contact events (impulses and mode changes), time in the fallback,
   and wall time against the elastic run (median of ``--repeat``, one process,
-  interleaved);
+  interleaved); with ``--against CHECKOUT`` also the run times of this
+  checkout's code and the other's side by side, each repeat a new process of
+  each, alternating (``PYTHONPATH``), so both see the same machine;
 * **resting steps**: ns per step of the plastic drop once everything rests
   (four persistent contacts) against the same scene in free fall (gravity,
   no contact), both by the kernel's own clock (``meta["kernel"]["run_seconds"]``);
@@ -100,6 +103,40 @@ def restitution(repeat: int, t_end: float) -> list[dict]:
     return rows
 
 
+#: a child process of --against: the kernel's run time of each restitution row, as JSON on its last line
+CHILD = r"""
+import json, sys
+import jackbox
+t_end, values = float(sys.argv[1]), json.loads(sys.argv[2])
+for name in ("shaken", "spring"):                      # (warm: loads or compiles what the runs need)
+    jackbox.simulate(name, t_end=t_end, params={"e": 0.0, "e_ground": 0.0})
+out = {}
+for name in ("shaken", "spring"):
+    for e in values:
+        traj = jackbox.simulate(name, t_end=t_end, params={"e": e, "e_ground": e})
+        out[f"{name} {e!r}"] = traj.meta["kernel"]["run_seconds"]
+print(json.dumps(out))
+"""
+
+
+def side_by_side(checkout: Path, repeat: int, t_end: float) -> dict:
+    """Each restitution row's run time with this checkout's code and with ``checkout``'s, medians of new processes."""
+    import subprocess
+    here = Path(__file__).resolve().parent.parent
+    runs: dict = {"this": {}, "other": {}}
+    for _ in range(repeat):
+        for who, root in (("this", here), ("other", checkout.resolve())):
+            env = os.environ | {"PYTHONPATH": str(root), "JACKBOX_PROGRESS": "0"}
+            proc = subprocess.run([sys.executable, "-c", CHILD, str(t_end), json.dumps(RESTITUTIONS)], env=env,
+                                  capture_output=True, text=True)
+            if proc.returncode != 0:
+                last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
+                raise SystemExit(f"contact.py: the runs with {root}'s code failed: {last}")
+            for key, value in json.loads(proc.stdout.strip().splitlines()[-1]).items():
+                runs[who].setdefault(key, []).append(value)
+    return {who: {key: statistics.median(v) for key, v in rows.items()} for who, rows in runs.items()}
+
+
 def resting(repeat: int) -> dict:
     """ns per step at rest (the plastic drop, settled) and in free fall (no contact)."""
     settled = jackbox.simulate("drop", t_end=8.0, params={"e": 0.0, "e_ground": 0.0})
@@ -145,12 +182,22 @@ def markdown(res: dict) -> str:
     for r in res["studies"]:
         lines.append(f"| {r['study']} | {r['members']} | {r['lost']} | {r['fallback_members']} | "
                      f"{r['fallback_seconds']:.3g} s | {r['warnings']} | {r['wall_s']:.1f} s |")
-    lines += ["", "| scene, 10 s | e | impulses | mode changes | fallback | run time | vs e = 1 |",
+    horizon = f"{res['restitution'][0]['t_end']:g} s" if res["restitution"] else "10 s"
+    lines += ["", f"| scene, {horizon} | e | impulses | mode changes | fallback | run time | vs e = 1 |",
               "| --- | --- | --- | --- | --- | --- | --- |"]
     for r in res["restitution"]:
         lines.append(f"| {r['scene']} | {r['e']:g} | {r['impulses']} | {r['mode_changes']} | "
                      f"{r['fallback_seconds']:.3g} s | {1e3 * r['run_s']:.2f} ms | {r['vs_elastic']:.2f}x |")
     lines += ["", "Run time: the kernel's, every step recorded (`simulate`'s default), median of the repeats."]
+    if res.get("against"):
+        other = res["against"]
+        lines += ["", f"Side by side with `{other['checkout']}` (new processes of each, alternating, medians of "
+                  f"{other['repeat']}), ms:", "", f"| scene, {horizon} | e | this checkout | other | this / other |",
+                  "| --- | --- | --- | --- | --- |"]
+        for r in res["restitution"]:
+            key = f"{r['scene']} {r['e']!r}"
+            a, b = other["this"][key], other["other"][key]
+            lines.append(f"| {r['scene']} | {r['e']:g} | {1e3 * a:.2f} | {1e3 * b:.2f} | {a / b:.2f} |")
     rs = res["resting"]
     lines += ["", f"Resting step (plastic drop, settled, {rs['held_contacts']} persistent contacts): "
               f"{rs['resting_ns_per_step']:.0f} ns against {rs['free_ns_per_step']:.0f} ns in free fall "
@@ -169,13 +216,20 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=3, help="runs per timing, median (default 3)")
     ap.add_argument("--quick", action="store_true", help="small sizes: a smoke test")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results", help="folder for the results")
+    ap.add_argument("--against", type=Path, metavar="CHECKOUT",
+                    help="also time the restitution rows with another checkout's code (a git worktree), side by side")
     args = ap.parse_args(argv)
+    if args.against is not None and not (args.against / "jackbox" / "__init__.py").is_file():
+        ap.error(f"--against {args.against}: not a jackbox checkout (no jackbox/__init__.py there)")
     members, t_end, horizon, repeat = ((20, 0.5, 1.0, 1) if args.quick
                                        else (args.members, 2.0, 10.0, args.repeat))
     res = {"machine": f"{platform.machine()}, {os.cpu_count()} cores",
            "command": " ".join(["python", "benchmarks/contact.py", *(argv if argv is not None else sys.argv[1:])]),
            "studies": studies(members, t_end), "restitution": restitution(repeat, horizon),
            "resting": resting(repeat), "sweep": sweep(members, horizon)}
+    if args.against is not None:
+        res["against"] = {"checkout": str(args.against), "repeat": repeat,
+                          **side_by_side(args.against, repeat, horizon)}
     args.out.mkdir(parents=True, exist_ok=True)
     write_atomic(args.out / "contact.json", json.dumps(res, indent=1))
     write_atomic(args.out / "contact.md", markdown(res))

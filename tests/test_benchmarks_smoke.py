@@ -97,6 +97,22 @@ def test_contact_quick_mode(tmp_path):
     assert "| study |" in (tmp_path / "contact.md").read_text()
 
 
+def test_contact_side_by_side_with_another_checkout(tmp_path):
+    """--against runs the restitution rows with another checkout's code too (here this one's: no second tree
+    needed), in processes of their own; a folder that is not a checkout is refused in one line."""
+    script = str(ROOT / "benchmarks" / "contact.py")
+    subprocess.run([sys.executable, script, "--quick", "--out", str(tmp_path), "--against", str(ROOT)],
+                   check=True, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    result = json.loads((tmp_path / "contact.json").read_text())
+    keys = {f"{r['scene']} {r['e']!r}" for r in result["restitution"]}
+    assert set(result["against"]["this"]) == set(result["against"]["other"]) == keys
+    assert all(_positive(v) for v in result["against"]["other"].values())
+    assert "| this checkout | other | this / other |" in (tmp_path / "contact.md").read_text()
+    bad = subprocess.run([sys.executable, script, "--quick", "--out", str(tmp_path), "--against", str(tmp_path)],
+                         cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "not a jackbox checkout" in bad.stderr and "Traceback" not in bad.stderr
+
+
 def test_throughput_resting_row():
     # jackbox bench's row for a step with held contacts (the settled plastic drop) against a
     # free one: both figures measured, and the resting run really rests (the same four
