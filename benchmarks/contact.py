@@ -115,7 +115,7 @@ for name in ("shaken", "spring"):
     for e in values:
         traj = jackbox.simulate(name, t_end=t_end, params={"e": e, "e_ground": e})
         out[f"{name} {e!r}"] = traj.meta["kernel"]["run_seconds"]
-print(json.dumps(out))
+print(json.dumps({"jackbox": jackbox.__file__, "runs": out}))
 """
 
 
@@ -127,12 +127,16 @@ def side_by_side(checkout: Path, repeat: int, t_end: float) -> dict:
     for _ in range(repeat):
         for who, root in (("this", here), ("other", checkout.resolve())):
             env = os.environ | {"PYTHONPATH": str(root), "JACKBOX_PROGRESS": "0"}
+            # (run from that checkout: `python -c` puts the working folder first on the path)
             proc = subprocess.run([sys.executable, "-c", CHILD, str(t_end), json.dumps(RESTITUTIONS)], env=env,
-                                  capture_output=True, text=True)
+                                  cwd=root, capture_output=True, text=True)
             if proc.returncode != 0:
                 last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
                 raise SystemExit(f"contact.py: the runs with {root}'s code failed: {last}")
-            for key, value in json.loads(proc.stdout.strip().splitlines()[-1]).items():
+            got = json.loads(proc.stdout.strip().splitlines()[-1])
+            if not Path(got["jackbox"]).resolve().is_relative_to(root):
+                raise SystemExit(f"contact.py: the runs meant for {root} imported jackbox from {got['jackbox']}")
+            for key, value in got["runs"].items():
                 runs[who].setdefault(key, []).append(value)
     return {who: {key: statistics.median(v) for key, v in rows.items()} for who, rows in runs.items()}
 
