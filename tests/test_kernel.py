@@ -130,8 +130,8 @@ def test_record_every_keeps_every_kth_step_and_the_last():
 def test_sampling_does_not_change_a_resting_run():
     # drop at e = 0 comes to rest early (box on the ground, jack on its floor):
     # from then on the exact loop runs its quiet held steps in one call, which
-    # stops at every sample; sampling every step, every 7th or only the ends
-    # must give the same numbers, bit for bit
+    # writes the samples on its way; sampling every step, every 7th or only the
+    # ends must give the same numbers, bit for bit
     params = {"e": 0.0, "e_ground": 0.0}
     full = jackbox.simulate("drop", t_end=3.0, params=params)
     thin = jackbox.simulate("drop", t_end=3.0, params=params, record_every=7)
