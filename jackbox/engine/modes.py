@@ -174,6 +174,12 @@ def project_rows(model, t, q, qd, p, m, level, passes, ridx, jac, winv, A, L, ri
         solve_rows(y, m, L, rinv, y, x)
         add_response(jac, winv, ridx, m, x, n, q)
     model.contact_rows(t, q, qd, p, ridx, m, jac)
+    project_rates(jac, winv, ridx, m, n, L, rinv, y, x, qd)
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def project_rates(jac, winv, ridx, m, n, L, rinv, y, x, qd):
+    """The held rows' rates (their ROW_RATE column in jac) to zero: qd corrected in the metric of M, by the factorization in L, rinv."""
     for i in range(m):
         y[i] = -jac[ridx[i], n + ROW_RATE]
     solve_rows(y, m, L, rinv, y, x)
@@ -202,10 +208,7 @@ def settle_rows(model, t, q, qd, p, m, level, drift, dt, ridx, jac, winv, A, L, 
         if not (abs(jac[k, n + ROW_GAP] + level) <= drift and abs(jac[k, n + ROW_RATE]) * dt <= drift):
             project_rows(model, t, q, qd, p, m, level, np.int64(1), ridx, jac, winv, A, L, rinv, y, x, np.bool_(True))
             return False
-    for i in range(m):
-        y[i] = -jac[ridx[i], n + ROW_RATE]
-    solve_rows(y, m, L, rinv, y, x)
-    add_response(jac, winv, ridx, m, x, n, qd)
+    project_rates(jac, winv, ridx, m, n, L, rinv, y, x, qd)
     return True
 
 
