@@ -52,7 +52,9 @@ LABELS = {
     "every_feature": "every feature once (run, ensemble, chaos), empty cache",
     "warm_start": "warm start (everything cached): `jackbox run shaken --no-plots --t-end 0.001`",
 }
-CLI = "import sys; from jackbox.cli import main; sys.exit(main())"
+#: the program as the ``jackbox`` command runs it (``console``; a checkout from before it, ``main``)
+CLI = ("import sys, jackbox.cli as cli; "
+       "cli.console() if hasattr(cli, 'console') else sys.exit(cli.main())")
 SHORT = ("--t-end", "0.05")
 
 

@@ -11,6 +11,7 @@ built-in 'drop' scene, whose kernel is reused from the user's cache.
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -63,6 +64,31 @@ def test_help_subprocess():
     for word in ("run", "build", "scenes", "--version"):
         assert word in proc.stdout
     assert proc.stderr == ""
+
+
+# the program as the `jackbox` command runs it: cli.console(), which ends the process with os._exit
+CONSOLE = """
+import atexit, sys, threading, time
+import jackbox.cli as cli
+atexit.register(lambda: print("an exit handler ran"))
+if sys.argv[1] == "thread":
+    del sys.argv[1]
+    threading.Thread(target=lambda: (time.sleep(0.3), print("the thread finished", file=sys.stderr))).start()
+cli.console()
+"""
+
+
+@pytest.mark.parametrize("thread", [False, True])
+@pytest.mark.parametrize("argv", [["scenes"], ["run", "no-such-scene.toml"]])
+def test_the_program_ends_with_mains_status_and_output_and_runs_the_exit_handlers(capsys, thread, argv):
+    # stdout is a pipe (block-buffered): every line main and the exit handler printed must still
+    # come out; a thread still running is waited for, as Python's own exit does
+    status, out, err = run_cli(capsys, *argv)
+    env = {name: value for name, value in os.environ.items() if name != "PYTHONUNBUFFERED"}
+    proc = subprocess.run([sys.executable, "-c", CONSOLE, *(["thread"] if thread else []), *argv],
+                          capture_output=True, text=True, timeout=120, env=env)
+    assert (proc.returncode, proc.stdout) == (status, out + "an exit handler ran\n")
+    assert proc.stderr == err + "the thread finished\n" * thread
 
 
 @pytest.mark.parametrize("argv", [[], ["--help"], ["-h"]])
