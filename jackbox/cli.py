@@ -11,7 +11,6 @@ with status 1; a study with members that did not complete, 3 (see EXIT_CODES). P
 from __future__ import annotations
 
 import argparse
-import atexit
 import math
 import os
 import signal
@@ -24,6 +23,7 @@ from pathlib import Path
 
 from . import __version__
 from .errors import CacheWarning, JackboxError, RunStoppedError
+from .process import end
 
 EPILOG = """\
 examples:
@@ -89,27 +89,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def console() -> None:
-    """The ``jackbox`` program: :func:`main`, then the process ends without tearing Python down.
-
-    Python's own shutdown frees every module and every library Numba loaded,
-    one object at a time: 70-90 ms of a 0.5 s warm run, for memory the system
-    takes back anyway. Once main has returned, the exit handlers run
-    (:mod:`atexit`: a cache folder of this process removed, Numba's own), the
-    streams are flushed and the process ends (``os._exit``) with main's status.
-    Where another Python thread is still alive (a Dask client's), or the
-    handlers cannot be run, Python's own exit, which waits for it.
-    """
-    code = main()
-    run_handlers = getattr(atexit, "_run_exitfuncs", None)
-    if run_handlers is None or threading.active_count() > 1:
-        sys.exit(code)
-    run_handlers()
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):      # a closed pipe: what was not read is lost, as at any exit
-            pass
-    os._exit(code)
+    """The ``jackbox`` program: :func:`main`, then the process ends at once (:func:`jackbox.process.end`)."""
+    end(main())
 
 
 class _Terminated(BaseException):

@@ -18,6 +18,7 @@ process then compiles what is missing).
 import importlib.util
 import sys
 
+from ..process import end
 from . import ENTRIES, LOOPS, binding_name, compile_part
 
 
@@ -60,4 +61,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    end(main(sys.argv[1:]))     # the process that waits for it goes on 0.3 s sooner than after Python's teardown
