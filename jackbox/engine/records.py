@@ -122,8 +122,11 @@ SIGNATURES = {
     # an ensemble block's lanes (jackbox/engine/lanes.py, compiled with the model when a study needs it)
     "lanes": I8(F8, F8, I8, I8, V1, V1, V1, I1, I1),             # (t0, dt, i, i_stop, S, p, tol, live, quiet)
 }
-#: members of an ensemble block, stepped together in the lanes of one vector (jackbox.engine.lanes)
-LANES = 16
+#: members of an ensemble block, stepped together in the lanes of four vectors (jackbox.engine.lanes): the
+#: terms of time (a shaking force's sine, two calls of libm a step) and the loops' overhead are the block's,
+#: so a wider block pays less of them a member (one thread, member-steps/s: 16 lanes 4.67e7 shaken and 9.5e7
+#: with no impact, 32 lanes 5.11e7 and 1.15e8, 64 lanes 5.12e7 and 1.21e8)
+LANES = 32
 #: rows of a block's state (each LANES floats, free boxes: six coordinates): q, qd, the trial q and qd
 #: of the step the lanes stopped before, then the bound on every gap at the start and at the trial's end,
 #: the trial step's band, the bound on the gaps' speed at the start and at the trial's end, and scratch
