@@ -144,3 +144,39 @@ def test_campaign_quick_mode(tmp_path):
     assert family["passed"] + len(family["failures"]) == 2
     assert result["ranges"]["MASS_RATIO"] == [1e-4, 1e4]
     assert "| prescribed box" in (tmp_path / "campaign.md").read_text()
+
+
+def _profile_module():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("jackbox_profile_bench", ROOT / "benchmarks" / "profile.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_profile_names_the_machine_code_numba_compiled(tmp_path):
+    # perf's map of JIT code: each function Numba compiled in this process, at the address it runs from
+    import ctypes
+
+    import numba
+
+    profile = _profile_module()
+
+    @numba.cfunc("float64(float64)")
+    def tripled(x):
+        return 3.0 * x
+
+    count = profile.write_perf_map(tmp_path / "perf.map")
+    rows = [line.split(" ", 2) for line in (tmp_path / "perf.map").read_text().splitlines()]
+    assert count == len(rows) > 0
+    starts = [int(start, 16) for start, _, _ in rows]
+    assert starts == sorted(starts) and all(int(size, 16) > 0 for _, size, _ in rows)
+    mine = [(int(start, 16), int(size, 16)) for start, size, name in rows if "tripled" in name]
+    assert mine, "the cfunc compiled here is not in the map"
+    # its native entry point (the cfunc's address) lies inside one of the ranges named after it
+    address = ctypes.cast(tripled.ctypes, ctypes.c_void_p).value
+    assert any(start <= address < start + size for start, size in mine)
+    assert profile.demangled("_ZN7jackbox6engine6events10cubic_rootB3v80B38c8tJTIeFIjxB2IKSgIdddddd") == \
+        "jackbox.engine.events.cubic_root"
+    assert profile.demangled("__sin_fma") == "__sin_fma"
