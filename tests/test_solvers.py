@@ -87,3 +87,71 @@ def test_zero_and_empty_sets():
     assert rank == 0 and np.all(x == 0.0)
     x, rank = solve(np.zeros((0, 0)), np.zeros(0))
     assert rank == 0
+
+
+# --- the first probe of a crossing: the root of the step's cubic -------------------------------------
+
+def _bisection(fa, fb, da, db, sl, sr):
+    """The cubic's root in (sl, sr) by plain bisection to the last bit (what the engine computed before)."""
+    from jackbox.engine.gaps import hermite
+
+    h = hermite.py_func
+    if not (h(fa, fb, da, db, sl) >= 0.0 > h(fa, fb, da, db, sr)):
+        return -1.0
+    for _ in range(60):
+        mid = 0.5 * (sl + sr)
+        if not sl < mid < sr:
+            break
+        if h(fa, fb, da, db, mid) >= 0.0:
+            sl = mid
+        else:
+            sr = mid
+    return 0.5 * (sl + sr)
+
+
+def test_the_cubics_root_is_the_one_bisection_finds():
+    # Newton's method where the cubic falls all the way across the bracket (one root), bisection where
+    # it may cross three times: the root bisection finds, to round-off where there is one, exactly
+    # where there may be three (Newton could land on another crossing there)
+    import numba
+
+    from jackbox.engine import events
+    from jackbox.engine.gaps import hermite
+
+    cubic_root, h = numba.njit(events.cubic_root.py_func), hermite.py_func
+    rng = np.random.default_rng(11)
+    several = newton = 0
+    for _ in range(4000):
+        fa, fb = rng.uniform(0, 1) ** 3, -rng.uniform(0, 1) ** 3
+        da, db = rng.normal(0, 2), rng.normal(0, 2)
+        sl, sr = rng.uniform(0, 0.4), rng.uniform(0.6, 1.0)
+        got, want = cubic_root(fa, fb, da, db, sl, sr), _bisection(fa, fb, da, db, sl, sr)
+        if want < 0.0:
+            assert got == -1.0
+            continue
+        s = np.linspace(sl, sr, 2001)
+        falls = bool(np.all(np.diff(h(fa, fb, da, db, s)) < 0.0))
+        if falls:
+            newton += 1
+            assert abs(got - want) <= 64 * np.spacing(want), (fa, fb, da, db, sl, sr)
+            assert abs(h(fa, fb, da, db, got)) <= 16 * np.finfo(float).eps * (abs(fa) + abs(fb) + abs(da) + abs(db))
+        elif np.sum(np.diff(np.sign(h(fa, fb, da, db, s))) != 0) > 1:
+            several += 1
+            assert got == want, (fa, fb, da, db, sl, sr)
+    # cubics that cross three times inside the bracket: -k (s - r1)(s - r2)(s - r3), as values and slopes
+    for _ in range(500):
+        r1, r2, r3 = np.sort(rng.uniform(0.1, 0.9, 3))
+        k = rng.uniform(0.1, 10.0)
+
+        def c(x, r1=r1, r2=r2, r3=r3, k=k):
+            return -k * (x - r1) * (x - r2) * (x - r3)
+
+        def dc(x, r1=r1, r2=r2, r3=r3, k=k):
+            return -k * ((x - r2) * (x - r3) + (x - r1) * (x - r3) + (x - r1) * (x - r2))
+
+        sl, sr = rng.uniform(0.0, r1), rng.uniform(r3, 1.0)
+        got, want = cubic_root(c(0.0), c(1.0), dc(0.0), dc(1.0), sl, sr), _bisection(c(0.0), c(1.0), dc(0.0), dc(1.0), sl, sr)
+        if want >= 0.0:
+            several += 1
+            assert got == want, (r1, r2, r3, k, sl, sr)
+    assert newton > 500 and several > 400          # both branches were exercised

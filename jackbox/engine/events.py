@@ -102,13 +102,46 @@ def locate(model, step, kind, pos, ta, q, qd, tl, fl, tr, fr, guess, p, tol, m, 
 def cubic_root(fa, fb, da, db, sl, sr):
     """The root in (sl, sr) of the cubic with values fa, fb and slopes da, db at 0 and 1, or -1.
 
-    Where the cubic is positive at sl and negative at sr; by bisection, on the
-    polynomial alone (no step of the model). The cubic is RK4's own gap to
-    O(h^4), so its root is a first probe close to the event.
+    Where the cubic is positive at sl and negative at sr; on the polynomial
+    alone (no step of the model). Where it falls all the way from sl to sr
+    (its slope negative on the whole bracket: one root), by Newton's method
+    kept inside the bracket, to the last bit: five or six evaluations where a
+    bisection takes fifty-odd (it was 6-10% of an ensemble's time in lanes).
+    Otherwise (it may cross three times) by bisection, which picks the root it
+    always picked. The cubic is RK4's own gap to O(h^4), so its root is a
+    first probe close to the event.
     """
     hl, hr = hermite(fa, fb, da, db, sl), hermite(fa, fb, da, db, sr)
     if not (hl >= 0.0 > hr):
         return -1.0
+    # the slope 3 a3 s^2 + 2 a2 s + da: its largest value on [sl, sr] is at an end or at its vertex
+    a3 = 2.0 * fa + da - 2.0 * fb + db
+    a2 = -3.0 * fa - 2.0 * da + 3.0 * fb - db
+    top = max((3.0 * a3 * sl + 2.0 * a2) * sl + da, (3.0 * a3 * sr + 2.0 * a2) * sr + da)
+    if a3 < 0.0:
+        vertex = -a2 / (3.0 * a3)
+        if sl < vertex < sr:
+            top = max(top, (3.0 * a3 * vertex + 2.0 * a2) * vertex + da)
+    if top < 0.0:
+        s = sl + (sr - sl) * hl / (hl - hr)      # the secant's root: inside the bracket
+        for _ in range(100):
+            if not sl < s < sr:
+                s = 0.5 * (sl + sr)
+                if not sl < s < sr:              # no float left between the ends
+                    break
+            f = hermite(fa, fb, da, db, s)
+            if f >= 0.0:
+                sl = s
+            else:
+                sr = s
+            step = f / ((3.0 * a3 * s + 2.0 * a2) * s + da)
+            if not abs(step) < 0.5 * (sr - sl):  # too long (or NaN): bisect the bracket instead
+                s = 0.5 * (sl + sr)
+            elif s - step == s:                  # converged: the step is below the last bit of s
+                return s
+            else:
+                s = s - step
+        return 0.5 * (sl + sr)
     for _ in range(60):
         mid = 0.5 * (sl + sr)
         if not sl < mid < sr:
