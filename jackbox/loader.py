@@ -296,7 +296,8 @@ _JITTED = {**{name: "" for name in ("tuple_of", "accel_s", "accel_time_s", "box_
            **{name: ', inline="always"' for name in INLINED + LANES_INLINED},
            # a lane near a wall (lanes.calm): phi_s and gap_rate_s inlined, so that LLVM computes the sine
            # and cosine of each angle once for both; no references counted (calm allocates nothing)
-           **{name: ', inline="always"' for name in ("phi_s", "gap_rate_s")}, "calm": ", _nrt=False"}
+           **{name: ', inline="always"' for name in ("phi_s", "gap_rate_s")}, "calm": ", _nrt=False",
+           "trade": ", _nrt=False"}
 
 
 def _blocks(text: str) -> list[tuple[set, str, set]]:
