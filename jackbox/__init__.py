@@ -17,17 +17,34 @@ __version__ = "0.1.0"
 
 from .errors import (JackboxError, NonFiniteStateError, RunStoppedError, SceneError,  # noqa: E402
                      SimulationError, StalledError)
-from .scene import Scene, builtin_scenes, load_scene  # noqa: E402
-from .trajectory import Trajectory  # noqa: E402
-from .api import simulate  # noqa: E402
 
 __all__ = ["JackboxError", "NonFiniteStateError", "RunStoppedError", "Scene", "SceneError", "SimulationError",
            "StalledError", "Trajectory", "builtin_scenes", "load_scene", "simulate", "reference"]
 
+#: what the package gives, imported on first use: ``import jackbox`` itself loads neither NumPy nor
+#: Numba, so the ``jackbox`` program sets its collector up before they load (jackbox.cli.console)
+_LAZY = {"Scene": "scene", "builtin_scenes": "scene", "load_scene": "scene", "Trajectory": "trajectory",
+         "simulate": "api", "reference": None}
+
 
 def __getattr__(name):
-    if name == "reference":   # imports sympy: only when asked for
+    if name in _LAZY:
         import importlib
 
-        return importlib.import_module(".reference", __name__)
+        module = importlib.import_module(f".{_LAZY[name] or name}", __name__)
+        value = module if _LAZY[name] is None else getattr(module, name)
+        globals()[name] = value
+        return value
+    if not name.startswith("_"):      # a module of the package (jackbox.api, ...), as after its import
+        import importlib
+
+        try:
+            return importlib.import_module(f".{name}", __name__)
+        except ModuleNotFoundError as exc:
+            if exc.name != f"{__name__}.{name}":
+                raise
     raise AttributeError(f"module 'jackbox' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

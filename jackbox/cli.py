@@ -11,6 +11,7 @@ with status 1; a study with members that did not complete, 3 (see EXIT_CODES). P
 from __future__ import annotations
 
 import argparse
+import gc
 import math
 import os
 import signal
@@ -89,7 +90,16 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def console() -> None:
-    """The ``jackbox`` program: :func:`main`, then the process ends at once (:func:`jackbox.process.end`)."""
+    """The ``jackbox`` program: :func:`main`, then the process ends at once (:func:`jackbox.process.end`).
+
+    Python's cyclic collector is off in the program (garbage is freed by its
+    reference counts; a reference cycle lives until the process ends):
+    importing NumPy and Numba and loading the kernels made it collect again
+    and again, 30-50 ms of a 0.5 s warm start (``import jackbox`` loads
+    neither, so this comes first). A study on Dask, whose client lives long
+    and makes cycles, turns it back on (:func:`_study_kwargs`).
+    """
+    gc.disable()
     end(main())
 
 
@@ -344,6 +354,8 @@ def _span(text: str) -> tuple[float, float]:
 def _study_kwargs(args) -> dict:
     if args.workers and args.dask != "local":
         raise JackboxError("--workers goes with --dask local")
+    if args.dask or args.scheduler:
+        gc.enable()                 # (off in the program: see console)
     return {"perturb": _pairs(args.perturb, "--perturb", float), "sweep": _pairs(args.sweep, "--sweep", _span),
             "t_end": args.t_end, "dt": args.dt, "seed": args.seed, "grid": args.grid, "threads": args.threads,
             "chunk": args.chunk, "scheduler": args.scheduler, "device": args.device,

@@ -94,6 +94,17 @@ def test_importing_codegen_loads_neither_the_runtime_nor_sympy():
     assert loaded_after("import codegen; codegen.ModelSpec, codegen.generate, codegen.parse_formula") == []
 
 
+def test_importing_jackbox_or_its_program_loads_neither_numpy_nor_numba():
+    # the program turns Python's cyclic collector off before they load (cli.console); what the
+    # package gives is imported on first use, under the names it always had
+    heavy = ("numpy", "numba", "sympy")
+    assert loaded_after("import jackbox, jackbox.cli", heavy) == []
+    assert loaded_after("from jackbox import simulate, load_scene, Scene, Trajectory; import jackbox; "
+                        "jackbox.api.EVENT_TOL, jackbox.errors.SceneError", heavy) == ["numba", "numpy"]
+    assert loaded_after("import jackbox; print(callable(jackbox.simulate), jackbox.load_scene('drop').name)",
+                        heavy) == ["numba", "numpy"]
+
+
 def test_a_run_does_not_import_sympy():
     # the runtime imports the compiler's interface, but sympy only when a module must be generated
     assert loaded_after("import jackbox; jackbox.simulate('drop', t_end=0.01)") == ["jackbox"]
