@@ -10,7 +10,7 @@ A block's state is one array of rows of LANES floats (the members of the
 block side by side, :data:`jackbox.engine.records.BLOCK_ROWS` rows). Each
 loop over the lanes is written for LLVM's loop vectoriser: no call, no
 branch, the parameters and tolerances read into registers before it
-(``params_of``), and a trip count read at run time (a constant one of 16 is
+(``params_of``), and a trip count read at run time (a constant one of LANES is
 unrolled whole before the vectoriser sees it), so a loop becomes vector
 instructions of eight lanes. The terms of time (a shaking force's sine) are
 the block's: its members share their parameters, so each is computed once
@@ -75,7 +75,7 @@ def lane_bound(t, q, p):
 
 
 def lane_state(S, at, lane):
-    """The six numbers of lane ``lane`` from row ``at`` of S on (unsigned indices: see the copy in :func:`lanes`)."""
+    """The six numbers of lane ``lane`` from row ``at`` of S on (unsigned indices: see :func:`step_block`)."""
     return (S[_u8(at + lane)], S[_u8(at + _W + lane)], S[_u8(at + 2 * _W + lane)], S[_u8(at + 3 * _W + lane)],
             S[_u8(at + 4 * _W + lane)], S[_u8(at + 5 * _W + lane)])
 
@@ -193,7 +193,9 @@ def step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, A, B, GA, GB, SA, 
     """Step i of every lane from the state in rows A.. to its trial in rows B.. (bounds: GA, SA to GB, SB).
 
     Returns (how many live lanes are not calm: 0 if the step is taken, the
-    terms of time at the step's end).
+    terms of time at the step's end). The rows are read and written through
+    unsigned indices: with a signed one Numba wraps a negative index around at
+    each access, and LLVM left a loop over the lanes that copied rows scalar.
     """
     QV = 6 * _W
     BAND = (_BOUND + 2) * _W
