@@ -103,7 +103,8 @@ def restitution(repeat: int, t_end: float) -> list[dict]:
     return rows
 
 
-#: a child process of --against: the kernel's run time of each restitution row, as JSON on its last line
+#: a child process of --against: the kernel's run time of each restitution row (the median of three runs
+#: in the process), as JSON on its last line
 CHILD = r"""
 import json, sys
 import jackbox
@@ -113,8 +114,10 @@ for name in ("shaken", "spring"):                      # (warm: loads or compile
 out = {}
 for name in ("shaken", "spring"):
     for e in values:
-        traj = jackbox.simulate(name, t_end=t_end, params={"e": e, "e_ground": e})
-        out[f"{name} {e!r}"] = traj.meta["kernel"]["run_seconds"]
+        # three runs a process, their median: a process's first runs are often slower as a whole
+        seconds = sorted(jackbox.simulate(name, t_end=t_end, params={"e": e, "e_ground": e}).meta["kernel"]["run_seconds"]
+                         for _ in range(3))
+        out[f"{name} {e!r}"] = seconds[1]
 print(json.dumps({"jackbox": jackbox.__file__, "runs": out}))
 """
 
@@ -196,7 +199,7 @@ def markdown(res: dict) -> str:
     if res.get("against"):
         other = res["against"]
         lines += ["", f"Side by side with `{other['checkout']}` (new processes of each, alternating, medians of "
-                  f"{other['repeat']}), ms:", "", f"| scene, {horizon} | e | this checkout | other | this / other |",
+                  f"{other['repeat']} processes of the median of 3 runs each), ms:", "", f"| scene, {horizon} | e | this checkout | other | this / other |",
                   "| --- | --- | --- | --- | --- |"]
         for r in res["restitution"]:
             key = f"{r['scene']} {r['e']!r}"
