@@ -15,7 +15,7 @@ The re-steps go through ``step``, the integrator's compiled function value
 import numpy as np
 from numba import njit
 
-from .gaps import cubic_error, hermite, hermite_extrema, step_reach
+from .gaps import cubic_error, hermite, hermite_extrema, hermite_slope, step_reach
 from .modes import accel, contact_accel
 from .records import (AF, FLAGS, GA, GAP_ROUNDOFF, GB, GS, LAM, LAMA, LAMB, LEV, LR, LS, QB, QDB, QDS, QS, RIDX, T_AREST, T_EVENT, T_VREST, VA,
                       VB, WARN_LOCATE)
@@ -114,14 +114,13 @@ def cubic_root(fa, fb, da, db, sl, sr):
     hl, hr = hermite(fa, fb, da, db, sl), hermite(fa, fb, da, db, sr)
     if not (hl >= 0.0 > hr):
         return -1.0
-    # the slope 3 a3 s^2 + 2 a2 s + da: its largest value on [sl, sr] is at an end or at its vertex
-    a3 = 2.0 * fa + da - 2.0 * fb + db
-    a2 = -3.0 * fa - 2.0 * da + 3.0 * fb - db
-    top = max((3.0 * a3 * sl + 2.0 * a2) * sl + da, (3.0 * a3 * sr + 2.0 * a2) * sr + da)
-    if a3 < 0.0:
-        vertex = -a2 / (3.0 * a3)
+    # the slope A s^2 + B s + C: its largest value on [sl, sr] is at an end or at its vertex
+    A, B, C = hermite_slope(fa, fb, da, db)
+    top = max((A * sl + B) * sl + C, (A * sr + B) * sr + C)
+    if A < 0.0:
+        vertex = -B / (2.0 * A)
         if sl < vertex < sr:
-            top = max(top, (3.0 * a3 * vertex + 2.0 * a2) * vertex + da)
+            top = max(top, (A * vertex + B) * vertex + C)
     if top < 0.0:
         s = sl + (sr - sl) * hl / (hl - hr)      # the secant's root: inside the bracket
         for _ in range(100):
@@ -134,7 +133,7 @@ def cubic_root(fa, fb, da, db, sl, sr):
                 sl = s
             else:
                 sr = s
-            step = f / ((3.0 * a3 * s + 2.0 * a2) * s + da)
+            step = f / ((A * s + B) * s + C)
             if not abs(step) < 0.5 * (sr - sl):  # too long (or NaN): bisect the bracket instead
                 s = 0.5 * (sl + sr)
             elif s - step == s:                  # converged: the step is below the last bit of s

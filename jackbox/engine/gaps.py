@@ -63,16 +63,21 @@ def cubic_error(qd_a, qd_b, h, tol):
     return (r * wh + 4.0 * v * h) * wh * wh * wh / 24.0
 
 
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
+def hermite_slope(fa, fb, da, db):
+    """The slope of the cubic with values fa, fb and slopes da, db at 0 and 1: (A, B, C), A s^2 + B s + C."""
+    a3 = 2.0 * fa + da - 2.0 * fb + db
+    a2 = -3.0 * fa - 2.0 * da + 3.0 * fb - db
+    return 3.0 * a3, 2.0 * a2, da
+
+
 @njit(cache=True, no_cpython_wrapper=True)
 def hermite_extrema(fa, fb, da, db, ext):
     """Interior stationary points s in (0, 1) of the cubic with values fa, fb and slopes da, db.
 
     Writes up to two of them into ext (ascending); returns their number.
     """
-    a3 = 2.0 * fa + da - 2.0 * fb + db
-    a2 = -3.0 * fa - 2.0 * da + 3.0 * fb - db
-    # H'(s) = 3 a3 s^2 + 2 a2 s + da
-    A_, B_, C_ = 3.0 * a3, 2.0 * a2, da
+    A_, B_, C_ = hermite_slope(fa, fb, da, db)
     n = 0
     if abs(A_) < 1e-300:
         if abs(B_) > 1e-300:

@@ -80,6 +80,12 @@ def lane_state(S, at, lane):
             S[_u8(at + 4 * _W + lane)], S[_u8(at + 5 * _W + lane)])
 
 
+def put_lane_state(S, at, lane, x):
+    """The six numbers x into lane ``lane`` from row ``at`` of S on (:func:`lane_state`'s rows)."""
+    S[_u8(at + lane)], S[_u8(at + _W + lane)], S[_u8(at + 2 * _W + lane)] = x[0], x[1], x[2]
+    S[_u8(at + 3 * _W + lane)], S[_u8(at + 4 * _W + lane)], S[_u8(at + 5 * _W + lane)] = x[3], x[4], x[5]
+
+
 def tolerances_of(tol):
     """The tolerance slots a lane reads, up to the six coordinates' lever arms, as a tuple (held in registers)."""
     return (tol[0], tol[1], tol[2], tol[3], tol[4], tol[5], tol[6], tol[7], tol[8], tol[9], tol[10], tol[11],
@@ -210,11 +216,8 @@ def step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, A, B, GA, GB, SA, 
     for lane in range(n):
         qn, vn = rk4_stages(lane_state(S, A, lane), lane_state(S, A + QV, lane), dt, pt, t, tt, tm, ttm, t_next,
                             tt_next)
-        S[_u8(B + lane)], S[_u8(B + _W + lane)], S[_u8(B + 2 * _W + lane)] = qn[0], qn[1], qn[2]
-        S[_u8(B + 3 * _W + lane)], S[_u8(B + 4 * _W + lane)], S[_u8(B + 5 * _W + lane)] = qn[3], qn[4], qn[5]
-        S[_u8(B + QV + lane)], S[_u8(B + QV + _W + lane)], S[_u8(B + QV + 2 * _W + lane)] = vn[0], vn[1], vn[2]
-        S[_u8(B + QV + 3 * _W + lane)], S[_u8(B + QV + 4 * _W + lane)] = vn[3], vn[4]
-        S[_u8(B + QV + 5 * _W + lane)] = vn[5]
+        put_lane_state(S, B, lane, qn)
+        put_lane_state(S, B + QV, lane, vn)
         sb = _speed_bound(vn, tl)
         band = dt * max(S[_u8(SA + lane)], sb) + margin       # as in fly
         c = S[_u8(GA + lane)] - band
@@ -261,4 +264,4 @@ def trade(S, n):
 
 #: the helpers a lanes part inlines at Numba's level (``inline="always"``): a loop over the lanes
 #: with a call left in it is not vectorised
-INLINED = ("sincos", "lane_state", "clearance_v", "lane_bound", "params_of", "tolerances_of", "finite", "step_block")
+INLINED = ("sincos", "lane_state", "put_lane_state", "clearance_v", "lane_bound", "params_of", "tolerances_of", "finite", "step_block")

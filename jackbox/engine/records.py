@@ -210,13 +210,13 @@ def scratch(model):
     ensemble in lanes calls it at each impact: about 6% of shaken's study).
     """
     n, C = model.n_dof, model.n_contact
-    f = np.zeros(9 * n + C * (n + ROW_EXTRA) + SC * C + SN * n + 3 * C * C + 2 + 6)
-    k = np.zeros(SK * C + C + MODE_SLOTS, np.int64)
-    a = 9 * n
+    a = 9 * n                       # where each float array ends
     b = a + C * (n + ROW_EXTRA)
     c = b + SC * C
     d = c + SN * n
     e = d + 3 * C * C
+    f = np.zeros(e + 2 + 6)
+    k = np.zeros(SK * C + C + MODE_SLOTS, np.int64)
     return Scratch(
         f[:a].reshape((9, n)),                          # RK4: a stage's coordinates, the stages' rates and accelerations
         f[a:b].reshape((C, n + ROW_EXTRA)),             # contact rows: phi_q, gap_bias, gap, rate (ROW_*)
