@@ -88,7 +88,7 @@ RANK_TOL = 1e-11
 PGS_SWEEPS, PGS_TOL = 20000, 1e-12
 
 
-@njit(cache=True, no_cpython_wrapper=True)
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
 def factor_rows(A, m, L, rinv):
     """Factor ``A[:m, :m]``, symmetric positive semi-definite, revealing its rank; returns the rank.
 
@@ -132,7 +132,7 @@ def factor_rows(A, m, L, rinv):
     return rank
 
 
-@njit(cache=True, no_cpython_wrapper=True)
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
 def solve_rows(b, m, L, rinv, y, x):
     """``x`` for ``A x = b`` with A factored by :func:`factor_rows`; the dependent rows' unknowns are 0.
 
