@@ -166,6 +166,61 @@ def test_chaos_twins_in_lanes_have_the_bits_they_have_alone(name, over, t_end, k
         assert same_bits(np.asarray(getattr(lanes, key)), np.asarray(getattr(alone, key))), key
 
 
+@pytest.mark.parametrize("name, over", [("shaken", {"restitution": "0.0"}), ("drop", {"restitution": "0.0"}),
+                                        ("spring", {"restitution": "0.0"})])
+def test_a_member_moved_where_no_contact_is_near_needs_no_contact_update(name, over):
+    """members.needs_update: where it says a moved member's contact set need not be found
+    again (so a renormalised chaos twin stays in its block's lanes), the contact update
+    would change nothing: the same state and modes to the bit, no event. Checked on every
+    sample of a plastic run (in flight, and resting on held contacts, which the update
+    finds and holds), moved by a renormalisation-sized offset, and on the same states
+    with one contact held, which always need the update."""
+    from jackbox import api
+    from jackbox.engine.members import needs_update
+    from jackbox.engine.modes import update_contacts
+    from jackbox.engine.records import MODE_SLOTS, MODEL_AT, Events, ModelType, from_table, scratch
+
+    scene = jackbox.load_scene(name, over)
+    traj = jackbox.simulate(scene, t_end=2.0, record_every=2)
+    assert len(traj.impact_t) > 0                  # the samples come near the walls
+    run = api.prepare(scene)
+    kernel = loader.kernel_for(scene)
+    loader.compile_kernel(kernel, "exact")
+    tol = api.tolerances(run, kernel)
+    off = 3 if kernel.PRESCRIBED else 0
+    Q = np.ascontiguousarray(traj.q[:, off:]) + 1e-13
+    QD = np.ascontiguousarray(traj.qd[:, off:]) - 1e-13
+
+    @njit
+    def check(table, T, Q, QD, p, tol, held):
+        model = from_table(table, MODEL_AT, ModelType)
+        C = model.n_contact
+        needs = np.zeros(T.shape[0], np.bool_)
+        changed = np.zeros(T.shape[0], np.bool_)
+        for j in range(T.shape[0]):
+            q, qd = Q[j].copy(), QD[j].copy()
+            rest = np.zeros(C + MODE_SLOTS, np.int8)
+            rest[0] = held
+            needs[j] = needs_update(model, T[j], q, qd, p, tol, rest)
+            log = Events(np.zeros(64), np.zeros(64, np.int64), np.zeros(64, np.int64))
+            n_ev, _ = update_contacts(model, T[j], q, qd, p, tol, rest, scratch(model), log, 0)
+            moved = n_ev > 0 or rest[0] != held
+            for d in range(q.shape[0]):
+                moved |= q[d] != Q[j, d] or qd[d] != QD[j, d]
+            for k in range(1, C):
+                moved |= rest[k] != 0
+            changed[j] = moved
+        return needs, changed
+
+    needs, changed = check(kernel.table(), traj.t, Q, QD, run.p, tol, 0)
+    assert not (changed & ~needs).any(), np.flatnonzero(changed & ~needs)
+    assert changed.any()                           # (the update has work on these samples)
+    # the shortcut is taken (in open space by the broad phase's bound) and not taken near a wall
+    assert (~needs).sum() >= len(needs) // 20 and needs.any(), (~needs).mean()
+    needs_held, _ = check(kernel.table(), traj.t, Q, QD, run.p, tol, 1)
+    assert needs_held.all()
+
+
 def test_a_sweep_or_a_prescribed_box_steps_its_members_alone(entries, tmp_path):
     ensemble("shaken", 4, sweep={"restitution": (0.5, 1.0)}, t_end=0.2, lanes=True)     # parameters differ
     assert "run_members" in entries and "run_member_blocks" not in entries

@@ -243,6 +243,12 @@ def near_rows(model, t, q, qd, p, near, m, jac, v):
         v[k] = jac[k, n + ROW_RATE]
 
 
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
+def time_resolution(t):
+    """The time resolution at t: what the contact update allows for a contact's travel in the rounding of an event time."""
+    return 8.0 * 2.220446049250313e-16 * max(abs(t), 1.0)
+
+
 @njit(cache=True, no_cpython_wrapper=True)
 def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
     """At an event: impulses for the contacts that take part, then the persistent set.
@@ -275,7 +281,7 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
     near = ws.k[NEAR]
     m = 0
     # closer than T_GAP, or than the contact travels in the time resolution at t
-    dt_res = 8.0 * 2.220446049250313e-16 * max(abs(t), 1.0)
+    dt_res = time_resolution(t)
     for k in range(C):
         if g[k] < tol[T_GAP] + abs(v[k]) * dt_res or rest[k]:
             near[m] = k
