@@ -415,7 +415,8 @@ def twins(Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, f
         p, tol = _copy(_cuda.local.array(_NP, _f8), P[j]), _copy(_cuda.local.array(_NT, _f8), TOL[j])
         _follow_twins(_model(), _exact, _stages(), q, qd, qt, qdt, DQ[j], DQD[j], p, tol, dt, n_steps, renorm_steps,
                       scale, stretch[j], fin[j], _cuda.local.array(_NR, _i8), _cuda.local.array(_NR, _i8), _log(),
-                      _log(), _samples(), _cuda.local.array({TALLY}, _f8), _cuda.local.array({TALLY}, _f8))
+                      _log(), _samples(), _cuda.local.array({TALLY}, _f8), _cuda.local.array({TALLY}, _f8),
+                      _cuda.local.array((2, _C), _f8))
 '''
 
 

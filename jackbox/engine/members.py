@@ -229,13 +229,14 @@ def run_twins(model, exact, stages, q0, qd0, dq, dqd, p, tol, dt, n_steps, renor
     """
     follow_twins(model, exact, stages, q0.copy(), qd0.copy(), q0.copy(), qd0.copy(), dq, dqd, p, tol, dt, n_steps,
                  renorm_steps, scale, stretch, fin, new_modes(model), new_modes(model), new_log(LOG_SIZE),
-                 new_log(LOG_SIZE), new_samples(np.int64(2)), new_tally(), new_tally())
+                 new_log(LOG_SIZE), new_samples(np.int64(2)), new_tally(), new_tally(), np.empty((2, model.n_contact)))
 
 
 @njit(cache=True, no_cpython_wrapper=True)
 def follow_twins(model, exact, stages, q, qd, qt, qdt, dq, dqd, p, tol, dt, n_steps, renorm_steps, scale, stretch, fin,
-                 rest, rest_t, log, log_t, out, tally, tally_t):
-    """:func:`run_twins` in the arrays it is given (q, qd and qt, qdt: the start, twice; see :func:`follow_member`)."""
+                 rest, rest_t, log, log_t, out, tally, tally_t, gv):
+    """:func:`run_twins` in the arrays it is given (q, qd and qt, qdt: the start, twice; see :func:`follow_member`;
+    gv: (2, n_contact) scratch)."""
     n = model.n_dof
     for d in range(n):
         qt[d] += dq[d]
@@ -260,7 +261,7 @@ def follow_twins(model, exact, stages, q, qd, qt, qdt, dq, dqd, p, tol, dt, n_st
         n_rec = 1
         if status != DONE:
             break
-        stretch[k] = renormalise(model, 0.0 + stop * dt, q, qd, qt, qdt, dq, dqd, scale, d0, rest_t, p, tol)
+        stretch[k] = renormalise(model, 0.0 + stop * dt, q, qd, qt, qdt, dq, dqd, scale, d0, rest_t, p, tol, gv)
         k += 1
     for j in range(k, stretch.shape[0]):
         stretch[j] = np.nan
@@ -281,14 +282,14 @@ def twin_distance(dq, dqd, scale, n):
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def renormalise(model, t, q, qd, qt, qdt, dq, dqd, scale, d0, rest_t, p, tol):
+def renormalise(model, t, q, qd, qt, qdt, dq, dqd, scale, d0, rest_t, p, tol, gv):
     """Benettin's renormalisation: the twin put back at distance d0 along its separation; returns log(d / d0).
 
     NaN where the twins met (round-off): the twin restarts at its first
     offset. The twin's contact set is to be found again at its next step
     (its state moved, at time t), unless it is in the fallback, or it holds no
     contact and no contact is near enough for the exact loop's contact update
-    to look at it (:func:`needs_update`).
+    to look at it (:func:`needs_update`, in the scratch gv).
     """
     n, C = model.n_dof, model.n_contact
     dist = 0.0
@@ -306,30 +307,40 @@ def renormalise(model, t, q, qd, qt, qdt, dq, dqd, scale, d0, rest_t, p, tol):
         for d in range(n):
             qt[d] = q[d] + f * (qt[d] - q[d])
             qdt[d] = qd[d] + f * (qdt[d] - qd[d])
-    if rest_t[C + MODE_AT] == 0 and needs_update(model, t, qt, qdt, p, tol, rest_t):
+    if rest_t[C + MODE_AT] == 0 and needs_update(model, t, qt, qdt, p, tol, rest_t, gv):
         rest_t[C + MODE_AT] = -1
     return out
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def needs_update(model, t, q, qd, p, tol, rest):
+def needs_update(model, t, q, qd, p, tol, rest, gv):
     """Whether the contact update (:func:`~.modes.update_contacts`) could change anything for a member moved to (t, q, qd).
 
-    Not where the member holds no contact and the broad phase's bound on
-    every gap clears, twice over, the distance within which the update looks
-    at a contact (T_GAP, plus what the contact travels in the time resolution
-    at t, bounded by the speed bound): the update finds no contact there and
-    leaves the state and the modes as they are, so the exact loop's next step
-    is a plain one. A chaos twin renormalised in open space (nearly every
-    renormalisation of a free-flight study) then stays in its block's lanes;
-    before, each went through the exact loop alone for a step, which took
-    ~100 trips of each twin per 10 s of shaken against its 14 impacts.
+    Not where the member holds no contact and no contact is near enough for
+    the update to look at it: closer than T_GAP, or than it travels in the
+    time resolution at t (the update's own test, on the same numbers: the
+    model's ``phi`` and ``gap_rate`` into ``gv``, (2, n_contact) scratch,
+    unless the broad phase's bound on every gap clears twice that reach
+    already). The update then finds no contact and leaves the state and the
+    modes as they are, so the exact loop's next step is a plain one. A chaos
+    twin renormalised off the walls (most renormalisations of a free-flight
+    study) then stays in its block's lanes; before, each went through the
+    exact loop alone for a step: ~100 trips a twin per 10 s of shaken,
+    against its 14 impacts.
     """
     C = model.n_contact
     if not is_free(rest, C):
         return True
-    reach = tol[T_GAP] + speed_bound(qd, tol) * time_resolution(t)
-    return not model.clearance(t, q, p, tol) >= 2.0 * reach
+    dt_res = time_resolution(t)
+    if model.clearance(t, q, p, tol) >= 2.0 * (tol[T_GAP] + speed_bound(qd, tol) * dt_res):
+        return False
+    g, v = gv[0], gv[1]
+    model.phi(t, q, p, g)
+    model.gap_rate(t, q, qd, p, v)
+    for k in range(C):
+        if g[k] < tol[T_GAP] + abs(v[k]) * dt_res:
+            return True
+    return False
 
 
 @njit(cache=True)
@@ -601,6 +612,7 @@ def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, dt, n_steps, 
     """
     n = 6
     B = new_block(model)
+    gv = np.empty((2, model.n_contact))
     q, qd, qt, qdt = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     out = new_samples(np.int64(2))
     log = new_log(LOG_SIZE)
@@ -652,7 +664,7 @@ def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, dt, n_steps, 
             take_lane(B.S, r, q, qd)
             take_lane(B.S, tw, qt, qdt)
             stretch[j, k[r]] = renormalise(model, 0.0 + stop * dt, q, qd, qt, qdt, DQ[j], DQD[j], scale, d0[r],
-                                                      B.rests[tw], p, tol)
+                                                      B.rests[tw], p, tol, gv)
             put_lane(B.S, tw, qt, qdt)
             k[r] += 1
             copy_to(kept[r], B.tallies[tw])
