@@ -223,7 +223,8 @@ def run_twins(model, exact, stages, q0, qd0, dq, dqd, p, tol, dt, n_steps, renor
     measured, log(d / d0) goes to stretch[k], and the twin is put back at
     distance d0 along the current separation (Benettin's renormalisation).
     After each renormalisation the twin's contact set is found again (its
-    state moved): the contact update runs at its next step.
+    state moved): the contact update runs at its next step, unless it would
+    change nothing there (:func:`needs_update`).
     fin: [impulses of the reference, status, step reached, seconds either
     twin spent in the fallback, solver warnings of both].
     """
@@ -434,8 +435,9 @@ def block_to(model, exact, stages, B, p, tol, dt, i, stop, out, log):
     Free members go through the model's lanes together (``model.lanes``): each
     step that no member has an event in is one vector step of the block. A
     member whose step has one goes alone through the exact loop for ALONE steps
-    and rejoins; so does a chaos twin that its renormalisation moved (its
-    contact set is found again in its next step, by the exact loop); one that
+    and rejoins; so does a chaos twin that its renormalisation moved near a
+    wall (its contact set is found again in its next step, by the exact loop:
+    :func:`needs_update`); one that
     holds a contact or is in the fallback goes alone to the end of the CHUNK.
     A member's numbers are those :func:`run_member` gives it, bit for bit: the
     lanes take only steps the exact loop would take as a plain RK4 step, with
