@@ -104,7 +104,7 @@ def contact_accel(model, t, q, qd, p, m, a, ws):
                np.bool_(False))
 
 
-@njit(cache=True, no_cpython_wrapper=True, inline="always")
+@njit(cache=True, no_cpython_wrapper=True)
 def held_accel(model, t, q, qd, p, m, a, ridx, jac, winv, A, L, rinv, y, lam, factored):
     """:func:`contact_accel` on the arrays themselves, ``winv = diag(M^-1)`` already filled.
 
@@ -118,10 +118,12 @@ def held_accel(model, t, q, qd, p, m, a, ridx, jac, winv, A, L, rinv, y, lam, fa
     factored: L and rinv already hold the factorization of the rows at q
     (:func:`settle_rows` left it), the same numbers this call would compute:
     the rows are read again (their bias is of qd), the matrix is not.
-    Inlined where it is called, with :func:`~.impact.factor_rows` and
-    :func:`~.impact.solve_rows`: a held step makes four such calls and their
-    arguments (some seventy words each) cost 8-12% of the step (the same
-    bits; the engine's compile time unchanged, benchmarks/compile_parts.py).
+    :func:`~.impact.factor_rows` and :func:`~.impact.solve_rows` are inlined
+    into it (their calls' arguments were some 5% of a held step). Inlining
+    this function too into :func:`~.integrator.rk4_pass` gained 6% more, but
+    rk4_pass is in every stage that steps (the crossing search's too), and
+    the first result of ``jackbox run`` then took 1.1 s longer to compile
+    (12.40 s against 11.30, ``jackbox bench --compile``): not kept.
     """
     model.accel(t, q, qd, p, a)
     model.contact_rows(t, q, qd, p, ridx, m, jac)
