@@ -437,8 +437,8 @@ def block_to(model, exact, stages, B, p, tol, dt, i, stop, out, log):
     member whose step has one goes alone through the exact loop for ALONE steps
     and rejoins; so does a chaos twin that its renormalisation moved near a
     wall (its contact set is found again in its next step, by the exact loop:
-    :func:`needs_update`); one that
-    holds a contact or is in the fallback goes alone to the end of the CHUNK.
+    :func:`needs_update`); one that holds a contact or is in the fallback goes
+    alone to the end of the CHUNK.
     A member's numbers are those :func:`run_member` gives it, bit for bit: the
     lanes take only steps the exact loop would take as a plain RK4 step, with
     the same operations, and a call of the exact loop from any step goes on as

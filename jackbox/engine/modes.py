@@ -119,7 +119,8 @@ def held_accel(model, t, q, qd, p, m, a, ridx, jac, winv, A, L, rinv, y, lam, fa
     (:func:`settle_rows` left it), the same numbers this call would compute:
     the rows are read again (their bias is of qd), the matrix is not.
     :func:`~.impact.factor_rows` and :func:`~.impact.solve_rows` are inlined
-    into it (their calls' arguments were some 5% of a held step). Inlining
+    here as wherever they are called (their calls' arguments were some 5% of
+    a held step). Inlining
     this function too into :func:`~.integrator.rk4_pass` gained 6% more, but
     rk4_pass is in every stage that steps (the crossing search's too), and
     the first result of ``jackbox run`` then took 1.1 s longer to compile
