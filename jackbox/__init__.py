@@ -15,6 +15,8 @@ right twin (sympy.lambdify and plain Python); it is imported on first use.
 
 __version__ = "0.1.0"
 
+import importlib as _importlib  # noqa: E402
+
 from .errors import (JackboxError, NonFiniteStateError, RunStoppedError, SceneError,  # noqa: E402
                      SimulationError, StalledError)
 
@@ -29,17 +31,13 @@ _LAZY = {"Scene": "scene", "builtin_scenes": "scene", "load_scene": "scene", "Tr
 
 def __getattr__(name):
     if name in _LAZY:
-        import importlib
-
-        module = importlib.import_module(f".{_LAZY[name] or name}", __name__)
+        module = _importlib.import_module(f".{_LAZY[name] or name}", __name__)
         value = module if _LAZY[name] is None else getattr(module, name)
         globals()[name] = value
         return value
     if not name.startswith("_"):      # a module of the package (jackbox.api, ...), as after its import
-        import importlib
-
         try:
-            return importlib.import_module(f".{name}", __name__)
+            return _importlib.import_module(f".{name}", __name__)
         except ModuleNotFoundError as exc:
             if exc.name != f"{__name__}.{name}":
                 raise
