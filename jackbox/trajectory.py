@@ -122,7 +122,7 @@ class Trajectory:
         except FileNotFoundError:
             raise JackboxError(f"{path}: no such file") from None
         except (OSError, ValueError, zipfile.BadZipFile) as exc:
-            raise JackboxError(f"{path}: not a trajectory .npz ({exc})") from None
+            raise JackboxError(f"{path}: not a trajectory .npz ({_not_npz(path, exc)})") from None
         with data:
             missing = [k for k in NPZ_KEYS if k not in data.files]
             if missing:
@@ -140,3 +140,20 @@ class Trajectory:
             **{k: arrays[k].astype(np.int64) if k in ("contact_constraint", "contact_event") else arrays[k]
                for k in EXTRA_KEYS if k in arrays},
         )
+
+
+def _not_npz(path, exc: Exception) -> str:
+    """Why NumPy could not read ``path``: its own words, unless the file is no NumPy file at all.
+
+    NumPy takes any file that is neither a zip archive nor an ``.npy`` for a
+    pickle, and with ``allow_pickle=False`` says so, advising to load it
+    "unsafely": for a user who named a text file by mistake, the wrong advice.
+    """
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(6)
+    except OSError:
+        return str(exc)
+    if head.startswith(b"PK") or head.startswith(b"\x93NUMPY"):
+        return str(exc)
+    return "not a NumPy .npz file"

@@ -472,6 +472,8 @@ def test_animate_and_plot_a_saved_trajectory(capsys, tmp_path, saved_run):
 @pytest.mark.parametrize("make, word", [
     (lambda d: d / "nowhere.npz", "no such file"),
     (lambda d: (d / "bad.npz").write_bytes(b"PK\x03\x04 not a zip") and d / "bad.npz", "not a trajectory"),
+    # a text file: NumPy would call it a pickle and advise loading it unsafely
+    (lambda d: (d / "notes.txt").write_text("root:x:0:0\n") and d / "notes.txt", "not a NumPy .npz file"),
     (lambda d: d, "is a folder"),
 ])
 @pytest.mark.parametrize("command, out_name", [("animate", "page.html"), ("plot", "page.png")])
