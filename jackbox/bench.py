@@ -637,10 +637,35 @@ def machine() -> dict:
         pass
     info = {"cpu": cpu, "cores": os.cpu_count(), "numba_threads": numba.config.NUMBA_NUM_THREADS,
             "os": f"{platform.system()} {platform.machine()}", "python": platform.python_version(),
-            "numpy": np.__version__, "numba": numba.__version__}
+            "numpy": np.__version__, "numba": numba.__version__, "svml": svml()}
     info["description"] = (f"{cpu}, {info['cores']} cores, {info['os']}, Python {info['python']}, "
-                           f"NumPy {info['numpy']}, Numba {info['numba']}")
+                           f"NumPy {info['numpy']}, Numba {info['numba']} (SVML {info['svml']})")
     return info
+
+
+def svml() -> str:
+    """Whether Numba vectorises sin and cos with Intel's SVML here: ``on``, or ``off`` and why.
+
+    It needs an llvmlite built with SVML (conda's; the wheels on the package
+    index are not) and the library (the ``intel-cmplr-lib-rt`` package).
+    jackbox's lanes do not call the library's sine in a vectorised loop (their
+    own polynomial, :func:`jackbox.engine.lanes.sincos`), so their figures do
+    not depend on it; the line says what the machine had.
+    """
+    import numba
+    from llvmlite import binding
+
+    if numba.config.USING_SVML:
+        return "on"
+    try:
+        patched = binding.targets.has_svml()
+    except AttributeError:
+        patched = False
+    if not patched:
+        return "off: this llvmlite is built without it"
+    if numba.config.DISABLE_INTEL_SVML:
+        return "off: NUMBA_DISABLE_INTEL_SVML"
+    return "off: no libsvml (the intel-cmplr-lib-rt package)"
 
 
 def command_line() -> str:

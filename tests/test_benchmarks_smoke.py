@@ -180,3 +180,20 @@ def test_profile_names_the_machine_code_numba_compiled(tmp_path):
     assert profile.demangled("_ZN7jackbox6engine6events10cubic_rootB3v80B38c8tJTIeFIjxB2IKSgIdddddd") == \
         "jackbox.engine.events.cubic_root"
     assert profile.demangled("__sin_fma") == "__sin_fma"
+
+
+def test_trip_quick_mode(tmp_path):
+    # the harness is compiled in the subprocess (no cache): a minute on a cold machine
+    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "trip.py"), "--quick", "--out", str(tmp_path)],
+                          cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    result = json.loads((tmp_path / "trip.json").read_text())
+    assert result["quick"] and "trip.py" in result["command"] and result["rows"]
+    # an invariant, not a timing: the step through run_segment and through the loop's body in a
+    # reused, zeroed scratch end in the same bits
+    assert result["same_bits"] is True
+    for row in result["rows"]:
+        assert row["impulses"] >= 3 and row["impact_step"] >= 30, row     # the third impact was found
+        for key in ("impact_call_ns", "free_call_ns", "impact_body_ns", "free_body_ns", "run_ns_per_step"):
+            assert _positive(row[key]), (key, row)
+    assert "| impact step |" in (tmp_path / "trip.md").read_text()
