@@ -107,48 +107,63 @@ def cubic_root(fa, fb, da, db, sl, sr):
     (its slope negative on the whole bracket: one root), by Newton's method
     kept inside the bracket, to the last bit: five or six evaluations where a
     bisection takes fifty-odd (it was 6-10% of an ensemble's time in lanes).
-    Otherwise (it may cross three times) by bisection, which picks the root it
-    always picked. The cubic is RK4's own gap to O(h^4), so its root is a
-    first probe close to the event.
+    Otherwise (it may cross three times) the bracket is halved, keeping the
+    sign change, only until it falls all the way (then Newton's method on
+    it: the root that halving to the last bit would reach, since a bracket
+    that falls all the way holds one root), at most to the last bit. The
+    cubic is RK4's own gap to O(h^4), so its root is a first probe close to
+    the event.
     """
     hl, hr = hermite(fa, fb, da, db, sl), hermite(fa, fb, da, db, sr)
     if not (hl >= 0.0 > hr):
         return -1.0
-    # the slope A s^2 + B s + C: its largest value on [sl, sr] is at an end or at its vertex
     A, B, C = hermite_slope(fa, fb, da, db)
+    for _ in range(60):
+        if falls(A, B, C, sl, sr):
+            return newton_root(fa, fb, da, db, A, B, C, sl, sr, hl, hr)
+        mid = 0.5 * (sl + sr)
+        if not sl < mid < sr:
+            break
+        h = hermite(fa, fb, da, db, mid)
+        if h >= 0.0:
+            sl, hl = mid, h
+        else:
+            sr, hr = mid, h
+    return 0.5 * (sl + sr)
+
+
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
+def falls(A, B, C, sl, sr):
+    """Whether the slope A s^2 + B s + C is negative on all of [sl, sr] (its largest value: an end or the vertex)."""
     top = max((A * sl + B) * sl + C, (A * sr + B) * sr + C)
     if A < 0.0:
         vertex = -B / (2.0 * A)
         if sl < vertex < sr:
             top = max(top, (A * vertex + B) * vertex + C)
-    if top < 0.0:
-        s = sl + (sr - sl) * hl / (hl - hr)      # the secant's root: inside the bracket
-        for _ in range(100):
-            if not sl < s < sr:
-                s = 0.5 * (sl + sr)
-                if not sl < s < sr:              # no float left between the ends
-                    break
-            f = hermite(fa, fb, da, db, s)
-            if f >= 0.0:
-                sl = s
-            else:
-                sr = s
-            step = f / ((A * s + B) * s + C)
-            if not abs(step) < 0.5 * (sr - sl):  # too long (or NaN): bisect the bracket instead
-                s = 0.5 * (sl + sr)
-            elif s - step == s:                  # converged: the step is below the last bit of s
-                return s
-            else:
-                s = s - step
-        return 0.5 * (sl + sr)
-    for _ in range(60):
-        mid = 0.5 * (sl + sr)
-        if not sl < mid < sr:
-            break
-        if hermite(fa, fb, da, db, mid) >= 0.0:
-            sl = mid
+    return top < 0.0
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def newton_root(fa, fb, da, db, A, B, C, sl, sr, hl, hr):
+    """:func:`cubic_root` on a bracket the cubic falls all the way across (hl >= 0 > hr its ends' values)."""
+    s = sl + (sr - sl) * hl / (hl - hr)      # the secant's root: inside the bracket
+    for _ in range(100):
+        if not sl < s < sr:
+            s = 0.5 * (sl + sr)
+            if not sl < s < sr:              # no float left between the ends
+                break
+        f = hermite(fa, fb, da, db, s)
+        if f >= 0.0:
+            sl = s
         else:
-            sr = mid
+            sr = s
+        step = f / ((A * s + B) * s + C)
+        if not abs(step) < 0.5 * (sr - sl):  # too long (or NaN): bisect the bracket instead
+            s = 0.5 * (sl + sr)
+        elif s - step == s:                  # converged: the step is below the last bit of s
+            return s
+        else:
+            s = s - step
     return 0.5 * (sl + sr)
 
 
