@@ -29,30 +29,15 @@ def contact_matrix(jac, winv, rows, m, A):
     """``A = J_R M^-1 J_R^T`` for the m contacts listed in rows (M diagonal: winv = diag M^-1).
 
     jac: the contacts' rows (:data:`~.records.ROW_BIAS`): their first n_dof entries.
-    Each entry is summed in the coordinates' order, two entries of a row at a
-    time: a sum of six products alone is a chain of dependent additions, two
-    are independent chains that the processor overlaps (the same numbers; the
-    resting drop's step 4% faster).
     """
     n = winv.shape[0]
     for i in range(m):
-        ri = rows[i]
-        j = i
-        while j + 1 < m:        # two entries of the row side by side: independent chains, each in d's order
-            rj, rk = rows[j], rows[j + 1]
-            s0, s1 = 0.0, 0.0
+        for j in range(i, m):
+            s = 0.0
             for d in range(n):
-                u = jac[ri, d] * winv[d]
-                s0 += u * jac[rj, d]
-                s1 += u * jac[rk, d]
-            A[i, j], A[j, i], A[i, j + 1], A[j + 1, i] = s0, s0, s1, s1
-            j += 2
-        if j < m:
-            rj = rows[j]
-            s0 = 0.0
-            for d in range(n):
-                s0 += jac[ri, d] * winv[d] * jac[rj, d]
-            A[i, j], A[j, i] = s0, s0
+                s += jac[rows[i], d] * winv[d] * jac[rows[j], d]
+            A[i, j] = s
+            A[j, i] = s
 
 
 @njit(cache=True, no_cpython_wrapper=True)

@@ -67,21 +67,11 @@ def add_response(jac, winv, ridx, m, x, n, out):
     The body's answer to contact forces (into accelerations), position
     corrections (into coordinates) or impulses (into rates).
     """
-    d = 0
-    while d + 1 < n:        # two coordinates' sums side by side (independent chains), each in i's order
-        s0, s1 = 0.0, 0.0
+    for d in range(n):
+        s = 0.0
         for i in range(m):
-            k = ridx[i]
-            s0 += jac[k, d] * x[i]
-            s1 += jac[k, d + 1] * x[i]
-        out[d] += winv[d] * s0
-        out[d + 1] += winv[d + 1] * s1
-        d += 2
-    if d < n:
-        s0 = 0.0
-        for i in range(m):
-            s0 += jac[ridx[i], d] * x[i]
-        out[d] += winv[d] * s0
+            s += jac[ridx[i], d] * x[i]
+        out[d] += winv[d] * s
 
 
 @njit(cache=True, no_cpython_wrapper=True, inline="always")
