@@ -23,7 +23,7 @@ from numba import njit, prange
 
 from .draws import START, TWIN, draw_normal, draw_uniform
 from .gaps import speed_bound
-from .modes import time_resolution
+from .modes import time_resolution, within_reach
 from .records import (DONE, EXACT_AT, FALLBACK, IMPACT_LOG_FULL, IMPULSE, LANES, MODE_AT, MODE_SLOTS, MODEL_AT,
                       STAGES_AT, T_BOXV, T_GAP, WARNING, BLOCK_ROWS, BOUND_ROW, SPEED_ROW, Events, ExactType, ModelType, Samples,
                       StagesType, from_table)
@@ -319,10 +319,10 @@ def needs_update(model, t, q, qd, p, tol, rest, gv):
 
     Not where the member holds no contact and no contact is near enough for
     the update to look at it: closer than T_GAP, or than it travels in the
-    time resolution at t (the update's own test, on the same numbers: the
-    model's ``phi`` and ``gap_rate`` into ``gv``, (2, n_contact) scratch,
-    unless the broad phase's bound on every gap clears twice that reach
-    already). The update then finds no contact and leaves the state and the
+    time resolution at t (the update's own test, :func:`~.modes.within_reach`,
+    on the same numbers: the model's ``phi`` and ``gap_rate`` into ``gv``,
+    (2, n_contact) scratch, unless the broad phase's bound on every gap
+    clears twice that reach already). The update then finds no contact and leaves the state and the
     modes as they are, so the exact loop's next step is a plain one. A chaos
     twin renormalised off the walls (most renormalisations of a free-flight
     study) then stays in its block's lanes; before, each went through the
@@ -339,7 +339,7 @@ def needs_update(model, t, q, qd, p, tol, rest, gv):
     model.phi(t, q, p, g)
     model.gap_rate(t, q, qd, p, v)
     for k in range(C):
-        if g[k] < tol[T_GAP] + abs(v[k]) * dt_res:
+        if within_reach(g[k], v[k], dt_res, tol):
             return True
     return False
 
@@ -666,7 +666,7 @@ def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, dt, n_steps, 
             take_lane(B.S, r, q, qd)
             take_lane(B.S, tw, qt, qdt)
             stretch[j, k[r]] = renormalise(model, 0.0 + stop * dt, q, qd, qt, qdt, DQ[j], DQD[j], scale, d0[r],
-                                                      B.rests[tw], p, tol, gv)
+                                           B.rests[tw], p, tol, gv)
             put_lane(B.S, tw, qt, qdt)
             k[r] += 1
             copy_to(kept[r], B.tallies[tw])

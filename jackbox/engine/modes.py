@@ -254,6 +254,13 @@ def time_resolution(t):
     return 8.0 * 2.220446049250313e-16 * max(abs(t), 1.0)
 
 
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
+def within_reach(g, v, dt_res, tol):
+    """Whether the contact update looks at a contact of gap g and rate v: closer than T_GAP, or than it
+    travels in the time resolution dt_res (:func:`time_resolution`)."""
+    return g < tol[T_GAP] + abs(v) * dt_res
+
+
 @njit(cache=True, no_cpython_wrapper=True)
 def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
     """At an event: impulses for the contacts that take part, then the persistent set.
@@ -288,7 +295,7 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
     # closer than T_GAP, or than the contact travels in the time resolution at t
     dt_res = time_resolution(t)
     for k in range(C):
-        if g[k] < tol[T_GAP] + abs(v[k]) * dt_res or rest[k]:
+        if within_reach(g[k], v[k], dt_res, tol) or rest[k]:
             near[m] = k
             m += 1
     if m == 0:
