@@ -364,9 +364,9 @@ def all_twins(model, exact, stages, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renor
 #: a block of members in lanes: its state (rows of LANES floats, see jackbox.engine.lanes), then per lane
 #: whether it steps in the lanes now, the step it is back from a stretch alone (-1: none), whether its
 #: trial step was quiet, whether it runs, its status and the step it reached, its contact modes, its
-#: tally, and its state while it steps alone
+#: tally, and its state while it steps alone; last, the lanes that go alone now (a list, see block_to)
 Block = namedtuple("Block", ["S", "live", "back", "quiet", "alive", "status", "reached", "rests", "tallies", "held_q",
-                             "held_qd"])
+                             "held_qd", "todo"])
 
 #: steps of a block between looks at which of its members are free (a member with a held contact or
 #: in the fallback steps alone, through the exact loop, to the end of such a stretch)
@@ -411,7 +411,8 @@ def new_block(model):
     W, C = LANES, model.n_contact
     return Block(np.zeros(BLOCK_ROWS * W), np.zeros(W, np.int64), np.zeros(W, np.int64), np.zeros(W, np.int64),
                  np.zeros(W, np.int64), np.zeros(W, np.int64), np.zeros(W, np.int64),
-                 np.zeros((W, C + MODE_SLOTS), np.int64), np.empty((W, TALLY)), np.empty((W, 6)), np.empty((W, 6)))
+                 np.zeros((W, C + MODE_SLOTS), np.int64), np.empty((W, TALLY)), np.empty((W, 6)), np.empty((W, 6)),
+                 np.zeros(W, np.int64))
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -428,6 +429,72 @@ def start_lane(model, exact, stages, B, lane, q, qd, p, tol, dt, out, log):
     return log
 
 
+@njit(cache=True, no_cpython_wrapper=True, _nrt=False)
+def lane_free(rests, lane, C):
+    """:func:`is_free` for lane ``lane`` of a block's modes (rests[lane]), read in place (no view)."""
+    for k in range(C + MODE_AT + 1):
+        if rests[lane, k] != 0:
+            return False
+    return True
+
+
+@njit(cache=True, no_cpython_wrapper=True, _nrt=False)
+def mark_chunk(alive, rests, live, back, C, todo):
+    """A chunk's start: each lane live (alive and free) or not, none back from a stretch alone.
+
+    Lists in ``todo`` the lanes that are alive but not free (they go alone);
+    returns how many.
+
+    The lanes are scanned here, without reference counts, and the
+    block's loop visits only the listed lanes: a loop in :func:`block_to`
+    that may hand the event log on (``log = alone_to(...)``) counted a
+    reference to each of its three arrays on every pass, some 200 calls into
+    Numba's runtime each time the block stopped.
+    """
+    n = 0
+    for lane in range(LANES):
+        live[lane] = 1 if alive[lane] == 1 and lane_free(rests, lane, C) else 0
+        back[lane] = -1
+        if alive[lane] == 1 and live[lane] == 0:
+            todo[n] = lane
+            n += 1
+    return n
+
+
+@njit(cache=True, no_cpython_wrapper=True, _nrt=False)
+def lanes_back(back, j, todo):
+    """Lists in ``todo`` the lanes back from a stretch alone at step j; returns how many (see :func:`mark_chunk`)."""
+    n = 0
+    for lane in range(LANES):
+        if back[lane] == j:
+            todo[n] = lane
+            n += 1
+    return n
+
+
+@njit(cache=True, no_cpython_wrapper=True, _nrt=False)
+def take_trials(S, live, quiet, todo):
+    """After the lanes stopped at a step: each live lane whose trial was quiet takes it as its next state.
+
+    Lists in ``todo`` the live lanes whose step has an event (they go
+    alone); returns how many (see :func:`mark_chunk`).
+    """
+    W = LANES
+    n = 0
+    for lane in range(W):
+        if not live[lane]:
+            continue
+        if quiet[lane]:            # the trial of the step is this lane's next state
+            for d in range(12):
+                S[d * W + lane] = S[(12 + d) * W + lane]
+            S[BOUND_ROW * W + lane] = S[(BOUND_ROW + 1) * W + lane]
+            S[SPEED_ROW * W + lane] = S[(SPEED_ROW + 1) * W + lane]
+            continue
+        todo[n] = lane
+        n += 1
+    return n
+
+
 @njit(cache=True, no_cpython_wrapper=True)
 def block_to(model, exact, stages, B, p, tol, dt, i, stop, out, log):
     """Every live lane of block B from step i to stop; returns the log.
@@ -442,35 +509,37 @@ def block_to(model, exact, stages, B, p, tol, dt, i, stop, out, log):
     A member's numbers are those :func:`run_member` gives it, bit for bit: the
     lanes take only steps the exact loop would take as a plain RK4 step, with
     the same operations, and a call of the exact loop from any step goes on as
-    one that got there itself.
+    one that got there itself. The lanes that go alone are listed first
+    (:func:`mark_chunk`, :func:`lanes_back`, :func:`take_trials`) and taken
+    in their order; no lane's stretch alone reads or writes another lane.
     """
     W, C = LANES, model.n_contact
-    S, live, back, quiet, alive, rests = B.S, B.live, B.back, B.quiet, B.alive, B.rests
+    S, live, back, quiet, alive, rests, todo = B.S, B.live, B.back, B.quiet, B.alive, B.rests, B.todo
     while i < stop:
         end = min(stop, i + CHUNK)
-        for lane in range(W):
-            live[lane] = 1 if alive[lane] == 1 and is_free(rests[lane], C) else 0
-            back[lane] = -1
-            if alive[lane] == 1 and live[lane] == 0:      # held, in the fallback or moved: alone for a while
-                take_lane(S, lane, B.held_q[lane], B.held_qd[lane])
-                back[lane] = min(i + ALONE, end) if rests[lane, C + MODE_AT] == -1 else end
-                log = alone_to(model, exact, stages, B, lane, p, tol, dt, i, back[lane], out, log)
+        n_todo = mark_chunk(alive, rests, live, back, C, todo)
+        for t in range(n_todo):            # held, in the fallback or moved: alone for a while
+            lane = todo[t]
+            take_lane(S, lane, B.held_q[lane], B.held_qd[lane])
+            back[lane] = min(i + ALONE, end) if rests[lane, C + MODE_AT] == -1 else end
+            log = alone_to(model, exact, stages, B, lane, p, tol, dt, i, back[lane], out, log)
         j = i
         while j < end:
+            n_todo = lanes_back(back, j, todo)
+            for t in range(n_todo):        # back from a stretch alone
+                lane = todo[t]
+                put_lane(S, lane, B.held_q[lane], B.held_qd[lane])
+                back[lane] = -1
+                if alive[lane] == 1 and lane_free(rests, lane, C):
+                    live[lane] = 1
+                elif alive[lane] == 1:
+                    back[lane] = end
+                    log = alone_to(model, exact, stages, B, lane, p, tol, dt, j, end, out, log)
             j_stop = end
-            for lane in range(W):
-                if back[lane] == j:                    # back from a stretch alone
-                    put_lane(S, lane, B.held_q[lane], B.held_qd[lane])
-                    back[lane] = -1
-                    if alive[lane] == 1 and is_free(rests[lane], C):
-                        live[lane] = 1
-                    elif alive[lane] == 1:
-                        back[lane] = end
-                        log = alone_to(model, exact, stages, B, lane, p, tol, dt, j, end, out, log)
-                if back[lane] > j:
-                    j_stop = min(j_stop, back[lane])
             n_live = 0
             for lane in range(W):
+                if back[lane] > j:
+                    j_stop = min(j_stop, back[lane])
                 n_live += live[lane]
             if n_live == 0:
                 j = j_stop
@@ -478,16 +547,9 @@ def block_to(model, exact, stages, B, p, tol, dt, i, stop, out, log):
             j = model.lanes(0.0, dt, j, j_stop, S, p, tol, live, quiet)
             if j == j_stop:
                 continue
-            for lane in range(W):
-                if not live[lane]:
-                    continue
-                if quiet[lane]:            # the trial of step j is this lane's next state
-                    for d in range(12):
-                        S[d * W + lane] = S[(12 + d) * W + lane]
-                    S[BOUND_ROW * W + lane] = S[(BOUND_ROW + 1) * W + lane]
-                    S[SPEED_ROW * W + lane] = S[(SPEED_ROW + 1) * W + lane]
-                    continue
-                # an event in the step: alone through the exact loop for a stretch, then back
+            n_todo = take_trials(S, live, quiet, todo)
+            for t in range(n_todo):        # an event in the step: alone through the exact loop for a stretch, then back
+                lane = todo[t]
                 take_lane(S, lane, B.held_q[lane], B.held_qd[lane])
                 live[lane] = 0
                 back[lane] = min(j + ALONE, end)
