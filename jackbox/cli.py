@@ -241,7 +241,7 @@ def _parser() -> argparse.ArgumentParser:
     _study_options(chaos)
     chaos.add_argument("--d0", type=_positive, default=1e-8, help="twin separation, scaled (default: 1e-8)")
     chaos.add_argument("--renorm", type=_positive, metavar="S",
-                       help="seconds between renormalisations (default: 100 steps)")
+                       help="seconds between renormalisations (default: 100 steps, or t-end if shorter)")
     chaos.add_argument("--out", type=Path, metavar="DIR", help="output folder (default: runs/<scene name>)")
     _lanes_option(chaos, "twin pairs")
     chaos.set_defaults(func=cmd_chaos)

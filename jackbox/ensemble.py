@@ -40,10 +40,11 @@ from codegen import BASE_SYMBOLS, parse_formula
 
 from . import __version__, api, loader
 from . import engine as K
+from .engine.records import DERIVE_CROSS, DERIVE_SQUARE
 from .errors import SimulationError
 from .fileio import write_atomic
 from .progress import progress_bar
-from .scene import COORDS, RATES, Scene, check_param, is_number, load_scene
+from .scene import COORDS, RATES, Scene, check_param, derived_inertia_inputs, is_number, load_scene
 
 #: members per kernel call when the progress bar is on (each call is parallel inside)
 CHUNK_MEMBERS = 1024
@@ -108,8 +109,10 @@ def plan(scene, n: int, perturb: dict[str, float] | None = None, params: dict[st
     if grid and pert and _side(n, len(pert)) is None:
         raise SimulationError(f"a grid over {len(pert)} coordinates needs n = m^{len(pert)} members, got n = {n}")
     sw = []
+    swept = {}                                 # parameter slot name -> the sweep's name for it
     for name, rng in (sweep or {}).items():
         slots = _param_slots(scene, name)      # refuses an unknown name
+        _check_swept(scene, name, slots, swept, params or {})
         try:
             lo, hi = rng
         except (TypeError, ValueError):
@@ -379,6 +382,11 @@ def ensemble(scene, n: int, perturb=None, params=None, t_end=None, dt=None, seed
     return Ensemble(spec=spec, meta=meta, **parts)
 
 
+#: the smallest twin separation a chaos study takes (scaled: coordinates by L, rates by sqrt(g L)): the
+#: states' own round-off is some 1e-16 of their scale, so a separation of 1e-12 is known to about 1e-4
+D0_MIN = 1e-12
+
+
 def chaos(scene, n: int, d0: float = 1e-8, renorm: float | None = None, perturb=None, params=None, t_end=None,
           dt=None, seed: int = 0, *, sweep=None, grid: bool = False, chunk: int | None = None,
           threads: int | None = None, scheduler: str | None = None, dask_local: int | None = None,
@@ -390,7 +398,8 @@ def chaos(scene, n: int, d0: float = 1e-8, renorm: float | None = None, perturb=
     (seed, i), jackbox.engine.draws: not numpy's generators as before, so the
     same seed now gives other directions and starts); every ``renorm`` seconds
     (default: 100 steps) the separation's growth is logged and the twin is
-    pulled back to d0 along it. Coordinates are scaled by the box's inner
+    pulled back to d0 along it (a run shorter than 100 steps: once, at
+    its end). Coordinates are scaled by the box's inner
     half-width L (angles by 1 rad), rates by sqrt(g L) (or L / t_end).
 
     Across an impact the twins can lie on two sides of it for a moment, which
@@ -402,12 +411,13 @@ def chaos(scene, n: int, d0: float = 1e-8, renorm: float | None = None, perturb=
     device = _device(device, scheduler, dask_local, lanes)
     spec = dataclasses.replace(plan(scene, n, perturb, params, sweep, t_end, dt, seed, grid, None),
                                lanes=None if lanes is None else bool(lanes), device=device)
-    if not (is_number(d0) and math.isfinite(d0) and 0 < d0 < 1e-2):
-        raise SimulationError(f"d0 must be a small positive number (below 1e-2), got {d0!r}")
+    if not (is_number(d0) and math.isfinite(d0) and D0_MIN <= d0 < 1e-2):
+        raise SimulationError(f"d0 must be a small positive number, from {D0_MIN:g} (twins any closer differ by "
+                              f"round-off of their states, and their stretches measure it) to below 1e-2, got {d0!r}")
     if renorm is not None and not (is_number(renorm) and math.isfinite(renorm)):
         raise SimulationError(f"renorm must be a time between dt ({spec.dt:g} s) and t_end "
                               f"({spec.t_end:g} s), got {renorm!r}")
-    renorm_steps = 100 if renorm is None else round(float(renorm) / spec.dt)
+    renorm_steps = min(100, spec.n_steps) if renorm is None else round(float(renorm) / spec.dt)
     if not 1 <= renorm_steps <= spec.n_steps:
         raise SimulationError(f"renorm must be between dt ({spec.dt:g} s) and t_end ({spec.t_end:g} s), got {renorm}")
     spec = dataclasses.replace(spec, renorm_steps=int(renorm_steps), d0=float(d0))
@@ -553,7 +563,20 @@ def _setup(spec: EnsembleSpec, kernel, first: int) -> K.Setup:
         sweep_hi=_f8([hi for _, _, hi in spec.sweep]), sweep_side=int(sweep_side), box_swept=int(box_swept),
         jack_factor=float(jack_factor), n_points=int(n_points), n_steps=int(run.n_steps), dt=float(run.dt),
         seed=int(spec.seed), first=int(first), d0=float(spec.d0) if twins else 0.0,
-        scale=_chaos_scale(spec) if twins else _f8([]))
+        scale=_chaos_scale(spec) if twins else _f8([]), derive=_derive(spec, swept))
+
+
+def _derive(spec: EnsembleSpec, swept: set[str]) -> np.ndarray:
+    """``Setup.derive``: the inertias the swept parameters move (the scene derives them), as slots."""
+    scene, given = spec.scene, {name for name, _ in spec.params}
+    moved = {derived_inertia_inputs(scene, name) for name in swept} - {None} - given
+    if not moved:
+        return _i8([])
+    at = scene.param_names.index
+    box = [at("J_box"), at("m_box"), at("L"), at("w_box")] if "J_box" in moved else [-1] * 4
+    jack = ([at("J_jack"), at("m_jack"), at("a_jack"), DERIVE_CROSS if scene.shape == "cross" else DERIVE_SQUARE]
+            if "J_jack" in moved else [-1] * 4)
+    return _i8(box + jack)
 
 
 def _set_up(spec: EnsembleSpec, kernel, start: int, stop: int) -> dict[str, np.ndarray]:
@@ -610,6 +633,24 @@ def _chaos_scale(spec: EnsembleSpec) -> np.ndarray:
     lengths = [1.0 if name.startswith("theta") else L for name in dofs]
     rates = [v / L if name.startswith("theta") else v for name in dofs]
     return np.array(lengths + rates)
+
+
+def _check_swept(scene: Scene, name: str, slots: list[int], swept: dict[str, str], params: dict) -> None:
+    """Refuse a sweep that sets a slot twice (``e`` and ``restitution``, or a sweep and ``params``), or
+    a polygon's vertex whose jack's inertia the scene derives. (A swept mass or size moves the box's or
+    a cross's or square's inertia with it in each member: ``Setup.derive``.)"""
+    for slot in slots:
+        slot_name = scene.param_names[slot]
+        if slot_name in swept:
+            raise SimulationError(f"sweep: {swept[slot_name]!r} and {name!r} both set {slot_name}: sweep it once")
+        if slot_name in params:
+            raise SimulationError(f"{slot_name} is given both in params and in the sweep over {name!r}: give it once")
+        if slot_name.startswith(("jack_x", "jack_y")) and derived_inertia_inputs(scene, slot_name) not in (None, *params):
+            # (each member's inertia would be the polygon's own, which the members' setup does not compute)
+            raise SimulationError(f"sweep: {name} moves the jack's inertia, which the scene derives from its "
+                                  "vertices: give jack.inertia in the scene (--set jack.inertia=...) or J_jack in "
+                                  "params to sweep a vertex with that inertia fixed")
+        swept[slot_name] = name
 
 
 def _param_slots(scene: Scene, name: str) -> list[int]:

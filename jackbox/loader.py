@@ -261,13 +261,14 @@ def _binding_parts(model_text: str, flight_text: str, lanes_text: str, digest: s
             rule + f"# Binding part (jackbox.loader): the model's {', '.join(entries)} as the engine's function "
             + ("values" if len(entries) > 1 else "value") + "\n"
             + "".join(f"# signature of {entry}: {engine.SIGNATURES[entry]}\n" for entry in entries)
-            + "# compiled without reference counting (jackbox.engine.bind_part)\n"
+            + f"# compiled without reference counting, error model {engine.ERROR_MODEL!r} (jackbox.engine.bind_part)\n"
             + (f"# engine: {digest}\n" if engine_code else "")
             + rule + "\n"
             + "\n\n\n".join(blocks[i][1] for i in chosen) + "\n\n\n"
             + ("from numba import njit as _njit\n" if names & set(_JITTED) else "")
             + "from jackbox.engine import bind_part as _bind_part\n\n"
-            + "".join(f"{name} = _njit(cache=True{_JITTED[name]})({name})\n" for name in _JITTED if name in names)
+            + "".join(f"{name} = _njit(cache=True, error_model={engine.ERROR_MODEL!r}{_JITTED[name]})({name})\n"
+                      for name in _JITTED if name in names)
             + "COMPILED = {" + ", ".join(f"{entry!r}: _bind_part({entry!r}, {entry})" for entry in entries) + "}\n"
         )
     return parts

@@ -362,10 +362,9 @@ def _build(raw: dict, source: str, text: str, builtin: bool) -> Scene:
         a = c.number("jack", "half_size", positive=True)
         if shape == "cross":
             points = a * np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
-            J_default = m_jack * a * a
         else:
             points = a * np.array(CORNER_SIGNS)
-            J_default = 2.0 * m_jack * a * a / 3.0
+        J_default = jack_inertia(shape, m_jack, a)
     J_jack = c.number("jack", "inertia", positive=True, required=False) or J_default
 
     g = c.number("world", "gravity", low=0.0, high=math.inf)
@@ -490,6 +489,11 @@ def frame_inertia(mass: float, L: float, w: float) -> float:
     return mass * (so * so + si * si) / 6.0
 
 
+def jack_inertia(shape: str, mass: float, a: float) -> float:
+    """Polar inertia of a cross (four point masses at a from its centre) or a uniform square plate of half-size a."""
+    return mass * a * a if shape == "cross" else 2.0 * mass * a * a / 3.0
+
+
 def polygon_inertia(mass: float, points: np.ndarray) -> float:
     """Polar inertia about the centroid of a uniform convex polygon (CCW vertices)."""
     x, y = points[:, 0], points[:, 1]
@@ -581,9 +585,49 @@ def param_array(scene: "Scene", values: dict[str, Any], where: str) -> np.ndarra
     p = scene.param_values.copy()
     for name, value in values.items():     # names are the scene's (the caller checked them)
         p[scene.param_names.index(name)] = check_param(name, value, where)
+    rederive_inertias(scene, p, values)
     if not np.array_equal(p, scene.param_values):
         check_start(scene, p, where)
     return p
+
+
+#: the parameter slots each derived inertia is computed from (see derived_inertia_inputs)
+BOX_INERTIA_FROM = ("m_box", "L", "w_box")
+JACK_INERTIA_FROM = ("m_jack", "a_jack")
+
+
+def derived_inertia_inputs(scene: "Scene", name: str) -> str | None:
+    """The inertia slot (J_box or J_jack) that the scene derives from parameter `name`, if any.
+
+    A scene file that gives no ``box.inertia`` (``jack.inertia``) has it
+    computed from the box's mass and sizes (the jack's mass and size or
+    vertices); a value set through ``params`` or a sweep must move it the
+    same way, as ``--set box.mass=...`` does when the file is read again.
+    """
+    if name in BOX_INERTIA_FROM and "inertia" not in scene.raw.get("box", {}):
+        return "J_box"
+    jack_input = name in JACK_INERTIA_FROM or (name.startswith(("jack_x", "jack_y")) and scene.shape == "polygon")
+    if jack_input and "inertia" not in scene.raw.get("jack", {}):
+        return "J_jack"
+    return None
+
+
+def rederive_inertias(scene: "Scene", p: np.ndarray, given: dict[str, Any]) -> None:
+    """The inertias the scene file derived, computed again in p from the masses and sizes in it.
+
+    Only where a value they come from is in `given` and the inertia itself
+    is not (an inertia given explicitly, in the file or in `given`, stays).
+    """
+    P = dict(zip(scene.param_names, p.tolist()))
+    for slot in {derived_inertia_inputs(scene, name) for name in given} - {None} - set(given):
+        if slot == "J_box":
+            value = frame_inertia(P["m_box"], P["L"], P["w_box"])
+        elif scene.shape == "polygon":
+            value = polygon_inertia(P["m_jack"], np.array([[P[f"jack_x{i}"], P[f"jack_y{i}"]]
+                                                           for i in range(len(scene.points))]))
+        else:
+            value = jack_inertia(scene.shape, P["m_jack"], P["a_jack"])
+        p[scene.param_names.index(slot)] = value
 
 
 def check_start(scene: "Scene", p: np.ndarray, where: str) -> None:

@@ -168,7 +168,9 @@ def test_member_tolerances_are_those_of_the_single_run(tmp_path):
              (hand, {"jack_x0": (0.25, 0.35)}, {}, True)]
     for scene, sweep, perturb, differ in cases:
         n = 16 if len(sweep) == 2 else 5
-        spec = E.plan(scene, n, sweep=sweep, perturb=perturb, t_end=0.3)
+        # (a polygon's vertex is swept with its inertia fixed: the scene derives it from the vertices)
+        fixed = {"J_jack": jackbox.load_scene(scene).params()["J_jack"]} if "jack_x0" in sweep else None
+        spec = E.plan(scene, n, sweep=sweep, perturb=perturb, params=fixed, t_end=0.3)
         kernel = E._kernel(spec)
         rows = E._set_up(spec, kernel, 0, n)
         run = E._base_run(spec)

@@ -252,6 +252,11 @@ FIRST_COMPILE = 0.6
 _binders: dict = {}
 
 
+#: how a model's compiled functions treat a division by zero (see bind_part): named in each binding
+#: part's text too, so that a part compiled under another model is never taken from the cache
+ERROR_MODEL = "numpy"
+
+
 def bind_part(name: str, fn):
     """A model function as the engine's function value: a ``cfunc`` of SIGNATURES[name], compiled or loaded.
 
@@ -267,7 +272,10 @@ def bind_part(name: str, fn):
         # from packing eight lanes: 11.5 against 7 ns a lane-step, measured)
         # (and without reference counting: a model function allocates nothing and writes into the
         # arrays it is handed, which its caller keeps alive; see NO_REFERENCES)
-        return numba.cfunc(SIGNATURES[name], cache=True, _nrt=False)(fn)
+        # (NumPy's error model: a division by zero in the model's terms, a shaking period T = 0 or a
+        # force 1 / x_jack at x_jack = 0, gives inf or NaN, which the engine reports as a non-finite
+        # state, not a ZeroDivisionError out of compiled code that an ensemble cannot even raise)
+        return numba.cfunc(SIGNATURES[name], cache=True, _nrt=False, error_model=ERROR_MODEL)(fn)
 
 
 def binding_name(path) -> str:

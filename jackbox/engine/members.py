@@ -24,7 +24,7 @@ from numba import njit, prange
 from .draws import START, TWIN, draw_normal, draw_uniform
 from .gaps import speed_bound
 from .modes import time_resolution, within_reach
-from .records import (DONE, EXACT_AT, FALLBACK, IMPACT_LOG_FULL, IMPULSE, LANES, MODE_AT, MODE_SLOTS, MODEL_AT,
+from .records import (DERIVE_CROSS, DONE, EXACT_AT, FALLBACK, IMPACT_LOG_FULL, IMPULSE, LANES, MODE_AT, MODE_SLOTS, MODEL_AT,
                       STAGES_AT, T_BOXV, T_GAP, WARNING, BLOCK_ROWS, BOUND_ROW, SPEED_ROW, Events, ExactType, ModelType, Samples,
                       StagesType, from_table)
 from .tolerances import set_tolerances
@@ -778,6 +778,25 @@ def grid_index(i, axis, n_axes, side):
 
 
 @njit(cache=True, no_cpython_wrapper=True)
+def derive_inertias(derive, p):
+    """The inertias a member's swept masses and sizes move (``Setup.derive``), computed again in p.
+
+    The scene file's own formulas, operation for operation
+    (``jackbox.scene.frame_inertia`` and ``jack_inertia``): a member's
+    parameters are those ``simulate(params=...)`` gives the same values.
+    """
+    if derive.shape[0] == 0:
+        return
+    if derive[0] >= 0:
+        L, w = p[derive[2]], p[derive[3]]
+        so, si = 2.0 * (L + w), 2.0 * L
+        p[derive[0]] = p[derive[1]] * (so * so + si * si) / 6.0
+    if derive[4] >= 0:
+        m, a = p[derive[5]], p[derive[6]]
+        p[derive[4]] = m * a * a if derive[7] == DERIVE_CROSS else 2.0 * m * a * a / 3.0
+
+
+@njit(cache=True, no_cpython_wrapper=True)
 def set_up_member(model, setup, i, q, qd, p, tol, offset):
     """Member i's start (q, qd), parameters p, tolerance row and chaos twin's offset; returns its start gap.
 
@@ -810,6 +829,7 @@ def set_up_member(model, setup, i, q, qd, p, tol, offset):
         lo, hi = setup.sweep_lo[a], setup.sweep_hi[a]
         c = grid_index(i, a, setup.sweep_lo.shape[0], side)
         p[setup.sweep_at[s]] = lo + (hi - lo) * c / (side - 1) if side > 1 else lo
+    derive_inertias(setup.derive, p)
     if setup.sweep_at.shape[0] == 0:        # the shared parameters: the shared row
         copy_to(tol, setup.tol)
     else:

@@ -162,9 +162,14 @@ EventsType = types.NamedTuple([V1, I1, I1], Events)
 #: no twins) and the state's scale
 Setup = namedtuple("Setup", ["q", "qd", "p", "tol", "perturb_at", "perturb_by", "grid", "sweep_at", "sweep_axis",
                              "sweep_lo", "sweep_hi", "sweep_side", "box_swept", "jack_factor", "n_points", "n_steps",
-                             "dt", "seed", "first", "d0", "scale"])
-SetupType = types.NamedTuple([V1, V1, V1, V1, I1, V1, I8, I1, I1, V1, V1, I8, I8, F8, I8, I8, F8, I8, I8, F8, V1],
+                             "dt", "seed", "first", "d0", "scale", "derive"])
+SetupType = types.NamedTuple([V1, V1, V1, V1, I1, V1, I8, I1, I1, V1, V1, I8, I8, F8, I8, I8, F8, I8, I8, F8, V1, I1],
                              Setup)
+#: Setup.derive: the slots of the inertias a sweep moves because the scene derives them (each -1 where
+#: none): the box's J_box, m_box, L, w_box, then the jack's J_jack, m_jack, a_jack and its shape
+#: (DERIVE_CROSS or DERIVE_SQUARE); empty where no swept value feeds a derived inertia
+DERIVE_SLOTS = 8
+DERIVE_CROSS, DERIVE_SQUARE = 0, 1
 
 # ---------------------------------------------------------------------------
 # scratch

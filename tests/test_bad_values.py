@@ -1,0 +1,97 @@
+"""Values a user can give through the API that used to slip past: they are refused, or mean what they say.
+
+Each case was found by trying the API as a user would (2026-11-26): a
+parameter set through ``params`` or a sweep left the inertia the scene file
+derives from it unchanged (other physics than ``--set`` gives), a
+division by zero in the model's terms escaped the compiled code as a raw
+``ZeroDivisionError`` (and lost a whole ensemble), a parameter swept under
+two names silently lost one of them, and chaos twins closer than round-off
+gave exponents of nothing.
+"""
+
+import numpy as np
+import pytest
+
+import jackbox
+from jackbox.engine import DONE, NONFINITE
+from jackbox.ensemble import chaos, ensemble
+from jackbox.errors import NonFiniteStateError, SimulationError
+
+from .conftest import PRESCRIBED, write_scene
+
+
+@pytest.mark.parametrize("overrides, params", [
+    ({"box.mass": 100.0, "jack.half_size": 0.3}, {"m_box": 100.0, "a_jack": 0.3}),
+    ({"box.wall_thickness": 0.2}, {"w_box": 0.2}),
+    ({"jack.mass": 2.0}, {"m_jack": 2.0}),
+])
+def test_params_move_the_inertias_the_scene_derives_as_the_scene_file_does(overrides, params):
+    # drop gives neither box.inertia nor jack.inertia: both follow the masses and sizes
+    by_file = jackbox.simulate(jackbox.load_scene("drop", overrides), t_end=0.3, record_every=10)
+    by_params = jackbox.simulate("drop", t_end=0.3, params=params, record_every=10)
+    base = jackbox.load_scene("drop").params()
+    moved = {k for k in ("J_box", "J_jack") if by_file.meta["params"][k] != base[k]}
+    assert moved                                         # the case changes a derived inertia
+    for k in moved:
+        assert by_params.meta["params"][k] == by_file.meta["params"][k]
+    assert np.array_equal(by_params.q, by_file.q) and np.array_equal(by_params.energy, by_file.energy)
+
+
+def test_an_inertia_given_with_the_mass_stays_as_given():
+    traj = jackbox.simulate("drop", t_end=0.05, params={"m_box": 100.0, "J_box": 3.0})
+    assert traj.meta["params"]["J_box"] == 3.0 and traj.meta["params"]["m_box"] == 100.0
+
+
+@pytest.mark.parametrize("scene, name, lo, hi, fixed", [
+    ("drop", "m_jack", 1.0, 3.0, {}),
+    ("drop", "m_box", 1.0, 3.0, {}),
+    ("shaken", "a_jack", 0.2, 0.3, {}),
+    ("drop", "m_jack", 1.0, 3.0, {"J_jack": 0.05}),       # the inertia fixed on purpose: it stays
+])
+def test_a_swept_mass_or_size_moves_its_derived_inertia_member_by_member(scene, name, lo, hi, fixed):
+    ens = ensemble(scene, 3, sweep={name: (lo, hi)}, params=fixed, t_end=0.3)
+    for i, value in enumerate(np.linspace(lo, hi, 3)):
+        alone = jackbox.simulate(scene, t_end=0.3, params={name: float(value), **fixed})
+        assert np.array_equal(alone.q[-1], ens.q[i]), (name, value)
+        assert len(alone.impact_t) == ens.impacts[i]
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"sweep": {"e": (0.1, 1.0), "restitution": (0.2, 0.3)}}, r"'e' and 'restitution' both set e"),
+    ({"sweep": {"e": (0.1, 1.0)}, "params": {"e": 0.3}}, r"e is given both in params and in the sweep"),
+])
+def test_a_parameter_set_twice_is_refused(kwargs, match):
+    for study in (ensemble, chaos):
+        with pytest.raises(SimulationError, match=match):
+            study("drop", 4, t_end=0.05, **kwargs)
+
+
+def test_a_division_by_zero_in_the_model_is_a_non_finite_state_not_an_exception():
+    # shaken's force is A sin(2 pi t / T): T = 0 divides by zero in the compiled terms
+    with pytest.raises(NonFiniteStateError, match="non-finite"):
+        jackbox.simulate("shaken", t_end=0.01, params={"T": 0.0})
+    ens = ensemble("shaken", 3, sweep={"T": (-1.0, 1.0)}, t_end=0.01, lanes=False)
+    assert list(ens.status) == [DONE, NONFINITE, DONE]
+    assert np.isnan(ens.q[1]).all() and np.isfinite(ens.q[[0, 2]]).all()
+
+
+def test_chaos_refuses_twins_closer_than_round_off():
+    with pytest.raises(SimulationError, match="d0 must be .* from 1e-12"):
+        chaos("drop", 2, d0=1e-20, t_end=0.05)
+    study = chaos("drop", 2, d0=1e-12, t_end=0.05)
+    assert np.all(study.status == DONE)
+
+
+def test_a_chaos_study_shorter_than_the_default_interval_renormalises_at_its_end():
+    # (the default interval, 100 steps, was refused for t_end < 100 dt with "got None")
+    study = chaos("drop", 2, t_end=0.05)
+    assert study.stretch.shape == (2, 1) and np.all(study.status == DONE)
+    assert study.times[-1] == pytest.approx(0.05)
+
+
+def test_a_polygons_vertex_is_swept_only_with_its_inertia_fixed(tmp_path):
+    scene = write_scene(tmp_path, PRESCRIBED)          # a polygon jack, its inertia derived
+    with pytest.raises(SimulationError, match="derives from its vertices: give jack.inertia"):
+        ensemble(scene, 3, sweep={"jack_x0": (0.25, 0.35)}, t_end=0.05)
+    fixed = {"J_jack": jackbox.load_scene(scene).params()["J_jack"]}
+    assert np.all(ensemble(scene, 3, sweep={"jack_x0": (0.25, 0.35)}, params=fixed, t_end=0.05).status == DONE)
