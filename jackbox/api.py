@@ -24,7 +24,7 @@ from . import engine as K
 from .engine.tolerances import EVENT_TOL, GAP_TOL, REST_TOL  # noqa: F401  (the exact method's, relative to L)
 from .errors import NonFiniteStateError, RunStoppedError, SimulationError, SolverWarning
 from .progress import progress_bar
-from .scene import Scene, load_scene, param_array
+from .scene import Scene, contact_gaps, jack_points, load_scene, param_array
 from .trajectory import Trajectory
 
 CHUNK = 1 << 15          #: steps per kernel call (progress granularity)
@@ -239,6 +239,8 @@ def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
                         "steps_per_second": run.n_steps / run_seconds if run_seconds > 0 else None}}
     if exact:
         extra["tolerances"] = {"gap": tol[K.T_GAP], "event": tol[K.T_EVENT], "v_rest": tol[K.T_VREST]}
+    if exact:
+        check_inside(run, rec_t[:n_rec], rec_q[:n_rec])
     ev_t, ev_k, ev_kind = ev_t[:n_ev], ev_k[:n_ev], ev_kind[:n_ev]
     hit = ev_kind == K.IMPULSE
     mode = (ev_kind == K.REST) | (ev_kind == K.RELEASE)
@@ -251,6 +253,32 @@ def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
     return finish(run, rec_t[:n_rec], rec_q[:n_rec], rec_qd[:n_rec], rec_e[:n_rec],
                   ev_t[hit].copy(), ev_k[hit].copy(), extra,
                   ev_t[mode].copy(), ev_k[mode].copy(), ev_kind[mode].copy(), fallback)
+
+
+#: the deepest any gap of an exact run may be at a recorded sample, as a fraction of the box's half-width L:
+#: held contacts sit at -T_EVENT/2 and the fallback's projection leaves them within 1e-9 L, so a jack found
+#: deeper went through a wall unseen (forces or masses far beyond what the step resolves: g = 1e20)
+INSIDE_LIMIT = 1e-6
+#: recorded samples looked at for it (evenly spread, the last always)
+INSIDE_SAMPLES = 101
+
+
+def check_inside(run: Run, t: np.ndarray, q: np.ndarray) -> None:
+    """Refuse an exact run whose jack ended up inside a wall or the box under the ground (see INSIDE_LIMIT)."""
+    if len(t) == 0:
+        return
+    scene = run.scene
+    P = dict(zip(scene.param_names, run.p.tolist()))
+    points, L = jack_points(scene, P), P["L"]
+    for i in np.unique(np.linspace(0, len(t) - 1, min(len(t), INSIDE_SAMPLES)).round().astype(int)):
+        gaps = contact_gaps(q[i], points, L, P["w_box"], scene.has_ground_contacts)
+        worst = int(np.argmin(gaps))
+        if not gaps[worst] >= -INSIDE_LIMIT * L:
+            raise RunStoppedError(
+                f"{scene.name}: at t = {t[i]:.6g} s contact {scene.constraint_names[worst]!r} is "
+                f"{-gaps[worst]:.3g} inside ({-gaps[worst] / L:.3g} L): the run went through a wall unseen. "
+                f"Its forces or masses are beyond what a step of dt = {run.dt:g} s resolves: try a smaller dt "
+                f"or check the parameters")
 
 
 #: what each WARNING code of the engine means, for a user

@@ -534,6 +534,10 @@ def cmd_run(args) -> int:
         print(f"impacts    {len(traj.impact_t)} impulses"
               + (f", first at t = {traj.impact_t[0]:.4g} s" if len(traj.impact_t) else ""))
         print(f"energy     {traj.energy[0]:.10g} J at start, {traj.energy[-1]:.10g} J at end")
+        if traj.meta.get("fallback_seconds"):
+            reasons = sorted(set(traj.meta.get("fallback_reasons", [])))
+            print(f"fallback   {traj.meta['fallback_seconds']:.4g} s integrated by the fallback (Moreau-Jean, "
+                  f"first order)" + (f": {'; '.join(reasons)}" if reasons else ""))
         how = {"hit": "loaded from cache", "miss": "compiled", "memory": "in memory",
                "disabled": "not compiled (NUMBA_DISABLE_JIT)"}[k["cache"]]
         print(f"wall time  {wall:.3f} s (kernel {how} "

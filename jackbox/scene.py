@@ -630,14 +630,18 @@ def rederive_inertias(scene: "Scene", p: np.ndarray, given: dict[str, Any]) -> N
         p[scene.param_names.index(slot)] = value
 
 
+def jack_points(scene: "Scene", P: dict[str, float]) -> np.ndarray:
+    """The jack's contact points in its frame for the parameter values P (its size or vertices)."""
+    if "a_jack" in P:
+        base = scene.param_values[scene.param_names.index("a_jack")]
+        return scene.points * (P["a_jack"] / base)
+    return np.array([[P[f"jack_x{i}"], P[f"jack_y{i}"]] for i in range(len(scene.points))])
+
+
 def check_start(scene: "Scene", p: np.ndarray, where: str) -> None:
     """Refuse a start state that penetrates with the parameter values `p`."""
     P = dict(zip(scene.param_names, p))
-    if "a_jack" in P:
-        base = scene.param_values[scene.param_names.index("a_jack")]
-        points = scene.points * (P["a_jack"] / base)
-    else:
-        points = np.array([[P[f"jack_x{i}"], P[f"jack_y{i}"]] for i in range(len(scene.points))])
+    points = jack_points(scene, P)
     q0 = scene.q0.copy()
     if scene.prescribed:
         constants = set(BASE_SYMBOLS) | set(scene.user_params) | {"t"}

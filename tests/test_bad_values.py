@@ -17,7 +17,7 @@ from jackbox.engine import DONE, NONFINITE
 from jackbox.ensemble import chaos, ensemble
 from jackbox.errors import NonFiniteStateError, SimulationError
 
-from .conftest import PRESCRIBED, write_scene
+from .conftest import PRESCRIBED, run_cli, write_scene
 
 
 @pytest.mark.parametrize("overrides, params", [
@@ -95,3 +95,18 @@ def test_a_polygons_vertex_is_swept_only_with_its_inertia_fixed(tmp_path):
         ensemble(scene, 3, sweep={"jack_x0": (0.25, 0.35)}, t_end=0.05)
     fixed = {"J_jack": jackbox.load_scene(scene).params()["J_jack"]}
     assert np.all(ensemble(scene, 3, sweep={"jack_x0": (0.25, 0.35)}, params=fixed, t_end=0.05).status == DONE)
+
+
+@pytest.mark.parametrize("overrides, t_end", [({"world.gravity": 1e20}, 0.01), ({"box.inertia": 1e-12}, 0.5)])
+def test_a_run_that_goes_through_a_wall_unseen_says_so(overrides, t_end, tmp_path, capsys):
+    # forces or inertias far beyond what a step resolves: the jack ended up 3.5e13 L (or 1e-2 L)
+    # inside a wall, with no impulse and exit status 0
+    from jackbox.errors import RunStoppedError
+
+    scene = jackbox.load_scene("drop", overrides)
+    with pytest.raises(RunStoppedError, match="went through a wall unseen"):
+        jackbox.simulate(scene, t_end=t_end)
+    sets = [f"--set={k}={v}" for k, v in overrides.items()]
+    status, _, err = run_cli(capsys, "run", "drop", *sets, "--t-end", str(t_end), "--no-plots", "--out", str(tmp_path))
+    assert status == 1 and "went through a wall unseen" in err and "Traceback" not in err
+    assert not (tmp_path / "trajectory.npz").exists()
