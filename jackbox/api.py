@@ -24,7 +24,7 @@ from . import engine as K
 from .engine.tolerances import EVENT_TOL, GAP_TOL, REST_TOL  # noqa: F401  (the exact method's, relative to L)
 from .errors import NonFiniteStateError, RunStoppedError, SimulationError, SolverWarning
 from .progress import progress_bar
-from .scene import Scene, contact_gaps, jack_points, load_scene, param_array
+from .scene import Scene, contact_gaps, is_number, jack_points, load_scene, param_array
 from .trajectory import Trajectory
 
 CHUNK = 1 << 15          #: steps per kernel call (progress granularity)
@@ -65,6 +65,11 @@ def prepare(scene, t_end=None, dt=None, record_every=1, params=None, method="exa
     where: how `params` were given, named in a refusal.
     """
     scene = load_scene(scene)
+    for name, value in (("t_end", t_end), ("dt", dt)):
+        if value is not None and not is_number(value):
+            raise SimulationError(f"{name} must be a number of seconds, got {value!r}")
+    if params is not None and not isinstance(params, dict):
+        raise SimulationError(f"params must be a dict of parameter names and values, got {params!r}")
     t_end = scene.t_end if t_end is None else float(t_end)
     dt = scene.dt if dt is None else float(dt)
     if not (math.isfinite(t_end) and t_end > 0):

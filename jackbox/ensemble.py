@@ -94,6 +94,9 @@ def plan(scene, n: int, perturb: dict[str, float] | None = None, params: dict[st
         raise SimulationError(f"n must be a positive integer, got {n!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
         raise SimulationError(f"seed must be an integer from 0 to 2^63 - 1, got {seed!r}")
+    for what, value in (("perturb", perturb), ("params", params), ("sweep", sweep)):
+        if value is not None and not isinstance(value, dict):
+            raise SimulationError(f"{what} must be a dict of names and values, got {value!r}")
     run = api.prepare(scene, t_end, dt, params=params, where="params")
     names = [*COORDS, *RATES]
     movable = scene.dof_names + tuple(f"{c}_dot" for c in scene.dof_names)
@@ -480,8 +483,10 @@ def _execute(fn, spec, chunk, threads, scheduler, dask_local, progress, log, ste
     else:
         old = numba.get_num_threads()
         if threads is not None:
-            if not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
-                raise SimulationError(f"threads must be between 1 and {numba.config.NUMBA_NUM_THREADS}, got {threads}")
+            if (isinstance(threads, bool) or not isinstance(threads, (int, np.integer))
+                    or not 1 <= threads <= numba.config.NUMBA_NUM_THREADS):
+                raise SimulationError(f"threads must be a whole number from 1 to "
+                                      f"{numba.config.NUMBA_NUM_THREADS}, got {threads!r}")
             numba.set_num_threads(threads)
         n_threads = numba.get_num_threads()
         bar = progress_bar(n, progress, "member", kind)
@@ -509,8 +514,10 @@ def _execute(fn, spec, chunk, threads, scheduler, dask_local, progress, log, ste
 
 
 def _device(device, scheduler, dask_local, lanes=None) -> str:
-    """The device a study asked for, checked: one clear line where it cannot be had."""
-    if device not in ("cpu", "cuda"):
+    """The device a study asked for, checked: one clear line where it cannot be had (and lanes: None or a bool)."""
+    if lanes is not None and not isinstance(lanes, (bool, np.bool_)):
+        raise SimulationError(f"lanes must be True, False or None (where it pays), got {lanes!r}")
+    if not isinstance(device, str) or device not in ("cpu", "cuda"):
         raise SimulationError(f"device must be 'cpu' or 'cuda', got {device!r}")
     if device == "cuda":
         if scheduler or dask_local:
@@ -698,7 +705,10 @@ def _side(n: int, k: int) -> int | None:
 def _sample_steps(samples, run: api.Run) -> tuple[int, ...]:
     if samples is None:
         return ()
-    times = np.atleast_1d(np.asarray(samples, float))
+    values = list(np.ravel(samples)) if isinstance(samples, (list, tuple, np.ndarray)) else [samples]
+    if not values or not all(is_number(v) for v in values) or np.ndim(samples) > 1:
+        raise SimulationError(f"samples must be a time or a list of times (s), got {samples!r}")
+    times = np.array(values, float)
     if not np.all(np.isfinite(times)) or times.min(initial=0.0) < 0 or times.max(initial=0.0) > run.n_steps * run.dt * (1 + 1e-12):
         raise SimulationError(f"samples must be times between 0 and t_end = {run.n_steps * run.dt:g} s")
     return tuple(sorted({int(round(t / run.dt)) for t in times}))

@@ -7,6 +7,8 @@ import tempfile
 from pathlib import Path
 from typing import Callable, IO
 
+from .errors import JackboxError
+
 
 def write_atomic(path: str | Path, data: str | bytes | Callable[[IO[bytes]], None]) -> Path:
     """Write `data` (text, bytes, or a function that writes to a binary file) to `path`.
@@ -15,8 +17,15 @@ def write_atomic(path: str | Path, data: str | bytes | Callable[[IO[bytes]], Non
     `path` in one rename; on any error the temporary file is removed and an
     existing `path` is left as it was.
     """
+    if not isinstance(path, (str, Path)) or not str(path):
+        raise JackboxError(f"{path!r}: not a file name to write to")
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.is_dir():
+        raise JackboxError(f"{path}: is a folder, not a file to write")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise JackboxError(f"{path}: its folder {path.parent} cannot be made (a file is in the way)") from None
     remove_stale_temporaries(path.parent)
     umask = os.umask(0)
     os.umask(umask)

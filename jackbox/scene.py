@@ -147,14 +147,20 @@ def load_scene(scene: "str | Path | Scene", overrides: dict[str, Any] | None = N
     a ``[params]`` name, a dotted key (``impact.restitution``) or a key that is
     unique in the schema (``restitution``, ``gravity``, ``dt`` ...).
     """
+    if overrides is not None and not isinstance(overrides, dict):
+        raise SceneError(str(scene), "", f"overrides must be a dict of keys and values, got {overrides!r}")
     if isinstance(scene, Scene):
         return scene.with_overrides(overrides) if overrides else scene
+    if not isinstance(scene, (str, Path)) or not str(scene):
+        raise SceneError(repr(scene), "", "a scene is a built-in name, a path to a .toml file or a Scene")
     builtins = builtin_scenes()
     path = Path(scene)
     if str(scene) in builtins and not path.exists():
         path, source, builtin = builtins[str(scene)], f"builtin:{scene}", True
     elif path.exists() or str(scene).endswith(".toml"):
         source, builtin = str(scene), False
+        if path.is_dir():
+            raise SceneError(source, "", "is a folder, not a scene file")
         if not path.is_file():
             raise SceneError(source, "", "no such scene file")
     else:

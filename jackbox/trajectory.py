@@ -132,6 +132,9 @@ class Trajectory:
             meta = json.loads(str(arrays["meta"]))
         except json.JSONDecodeError as exc:
             raise JackboxError(f"{path}: meta is not JSON ({exc})") from None
+        problem = _inconsistency(arrays)
+        if problem:
+            raise JackboxError(f"{path}: not a consistent trajectory: {problem}")
         return cls(
             t=arrays["t"], q=arrays["q"], qd=arrays["qd"], energy=arrays["energy"],
             impact_t=arrays["impact_t"], impact_constraint=arrays["impact_constraint"].astype(np.int64),
@@ -140,6 +143,30 @@ class Trajectory:
             **{k: arrays[k].astype(np.int64) if k in ("contact_constraint", "contact_event") else arrays[k]
                for k in EXTRA_KEYS if k in arrays},
         )
+
+
+def _inconsistency(arrays: dict) -> str | None:
+    """What does not fit in a trajectory's arrays (shapes, lengths, contact indices), if anything."""
+    n = arrays["t"].shape[0] if arrays["t"].ndim == 1 else -1
+    if n < 1:
+        return f"t has shape {arrays['t'].shape}, expected (n,) with n >= 1"
+    for key, shape in (("q", (n, 6)), ("qd", (n, 6)), ("energy", (n,))):
+        if arrays[key].shape != shape:
+            return f"{key} has shape {arrays[key].shape}, expected {shape} (t has {n} samples)"
+    names = arrays["constraint_names"]
+    for times, index in (("impact_t", "impact_constraint"), ("contact_t", "contact_constraint")):
+        if times not in arrays:
+            continue
+        t_, k_ = arrays[times], arrays[index]
+        if t_.ndim != 1 or k_.shape != t_.shape:
+            return f"{times} and {index} have shapes {t_.shape} and {k_.shape}, expected one length"
+        if k_.size and (not np.issubdtype(k_.dtype, np.integer) or k_.min() < 0 or k_.max() >= names.size):
+            return f"{index} holds a contact index outside 0..{names.size - 1}"
+    if "contact_event" in arrays and arrays["contact_event"].shape != arrays["contact_t"].shape:
+        return "contact_event and contact_t have different lengths"
+    if "fallback_t" in arrays and (arrays["fallback_t"].ndim != 2 or arrays["fallback_t"].shape[1:] != (2,)):
+        return f"fallback_t has shape {arrays['fallback_t'].shape}, expected (F, 2)"
+    return None
 
 
 def _not_npz(path, exc: Exception) -> str:

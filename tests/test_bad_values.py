@@ -110,3 +110,64 @@ def test_a_run_that_goes_through_a_wall_unseen_says_so(overrides, t_end, tmp_pat
     status, _, err = run_cli(capsys, "run", "drop", *sets, "--t-end", str(t_end), "--no-plots", "--out", str(tmp_path))
     assert status == 1 and "went through a wall unseen" in err and "Traceback" not in err
     assert not (tmp_path / "trajectory.npz").exists()
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: jackbox.simulate("drop", t_end="abc"), "t_end must be a number"),
+    (lambda: jackbox.simulate("drop", t_end="0.1"), "t_end must be a number"),
+    (lambda: jackbox.simulate("drop", dt=True), "dt must be a number"),
+    (lambda: jackbox.simulate("drop", params="e=0.5"), "params must be a dict"),
+    (lambda: jackbox.simulate(None), "a scene is a built-in name"),
+    (lambda: jackbox.load_scene(b"drop"), "a scene is a built-in name"),
+    (lambda: jackbox.load_scene("drop", [("e", 1)]), "overrides must be a dict"),
+    (lambda: ensemble("drop", 2, t_end=0.05, lanes="no"), "lanes must be True, False or None"),
+    (lambda: ensemble("drop", 2, t_end=0.05, threads=1.5), "threads must be a whole number"),
+    (lambda: ensemble("drop", 2, t_end=0.05, threads="2"), "threads must be a whole number"),
+    (lambda: ensemble("drop", 2, t_end=0.05, samples=["a"]), "samples must be a time"),
+    (lambda: ensemble("drop", 2, t_end=0.05, samples=[[0.01, 0.02]]), "samples must be a time"),
+    (lambda: ensemble("drop", 2, t_end=0.05, perturb=["x_jack"]), "perturb must be a dict"),
+    (lambda: chaos("drop", 2, t_end=0.05, sweep=[("e", 0.1, 1.0)]), "sweep must be a dict"),
+])
+def test_a_wrong_type_through_the_api_is_one_clear_error(call, match):
+    # (before: ValueError, TypeError or AttributeError from deep inside, or lanes="no" taken as True)
+    from jackbox.errors import JackboxError
+
+    with pytest.raises(JackboxError, match=match):
+        call()
+
+
+def test_a_folder_is_not_loaded_as_a_scene_nor_overwritten_by_a_save(tmp_path):
+    from jackbox.errors import JackboxError
+
+    with pytest.raises(JackboxError, match="is a folder, not a scene file"):
+        jackbox.load_scene(tmp_path)
+    traj = jackbox.simulate("drop", t_end=0.05)
+    (tmp_path / "run.npz").mkdir()
+    with pytest.raises(JackboxError, match="is a folder, not a file to write"):
+        traj.save(tmp_path / "run.npz")
+    (tmp_path / "file").write_text("keep")
+    with pytest.raises(JackboxError, match="cannot be made"):
+        traj.save(tmp_path / "file" / "run.npz")
+    assert (tmp_path / "file").read_text() == "keep"
+
+
+@pytest.mark.parametrize("key, bad, match", [
+    ("q", lambda d: d["q"][:, :5], r"q has shape \(\d+, 5\)"),
+    ("t", lambda d: d["t"][:-1], "t has"),
+    ("impact_constraint", lambda d: np.full(d["impact_t"].shape, 999), "contact index outside"),
+])
+def test_a_trajectory_file_whose_arrays_do_not_fit_is_refused_by_plot_and_animate(tmp_path, capsys, key, bad, match):
+    traj = jackbox.simulate("drop", t_end=1.0)
+    assert len(traj.impact_t) > 0                       # (the contact index case needs an impulse)
+    traj.save(tmp_path / "ok.npz")
+    arrays = dict(np.load(tmp_path / "ok.npz"))
+    arrays[key] = bad(arrays)
+    np.savez(tmp_path / "bad.npz", **arrays)
+    from jackbox.errors import JackboxError
+
+    with pytest.raises(JackboxError, match=match):
+        jackbox.Trajectory.load(tmp_path / "bad.npz")
+    for command, out in (("plot", "p.png"), ("animate", "a.html")):
+        status, _, err = run_cli(capsys, command, str(tmp_path / "bad.npz"), "--out", str(tmp_path / out))
+        assert status == 2 and "not a consistent trajectory" in err and "Traceback" not in err
+        assert not (tmp_path / out).exists()

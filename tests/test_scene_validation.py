@@ -509,7 +509,7 @@ def test_missing_name_that_is_not_builtin():
 def test_directory_is_not_a_scene_file(tmp_path):
     folder = tmp_path / "dir.toml"
     folder.mkdir()
-    refused(folder, "", "no such")
+    refused(folder, "", "is a folder, not a scene file")
 
 
 @pytest.mark.parametrize("dotted", ["name", "box.inner_half_width", "box.wall_thickness", "box.mass",
