@@ -59,6 +59,8 @@ class Expr:
         """
         try:
             value = float(_eval(self.tree, {**CONSTANTS, **values}))
+        except OverflowError:
+            raise ExprError(f"cannot be evaluated: {self.text!r} (a number too large for a float)") from None
         except (ArithmeticError, ValueError) as exc:
             raise ExprError(f"cannot be evaluated: {self.text!r} ({exc})") from None
         if not math.isfinite(value):
@@ -124,7 +126,9 @@ def _check(node: ast.AST, source: str, names: set[str]) -> None:
 
 def _eval(node: ast.expr, env: dict[str, float]) -> float:
     if isinstance(node, ast.Constant):
-        return node.value
+        # as a float: Python's whole numbers are exact and unbounded, so 9**9**9**9 would be computed
+        # digit by digit (hundreds of millions of them) where a float overflows at once
+        return float(node.value)
     if isinstance(node, ast.Name):
         return env[node.id]
     if isinstance(node, ast.UnaryOp):

@@ -171,3 +171,18 @@ def test_a_trajectory_file_whose_arrays_do_not_fit_is_refused_by_plot_and_animat
         status, _, err = run_cli(capsys, command, str(tmp_path / "bad.npz"), "--out", str(tmp_path / out))
         assert status == 2 and "not a consistent trajectory" in err and "Traceback" not in err
         assert not (tmp_path / out).exists()
+
+
+def test_a_formula_whose_number_is_astronomical_is_refused_at_once(tmp_path):
+    # 9**9**9**9 was computed as a whole number, digit by digit: load_scene never returned
+    import time
+    from importlib.resources import files
+
+    from jackbox.errors import SceneError
+
+    text = files("jackbox.scenes").joinpath("shaken.toml").read_text()
+    text = text.replace('[forces]\n', '[forces]\nx_jack = "9**9**9**9"\n', 1)
+    t0 = time.perf_counter()
+    with pytest.raises(SceneError, match=r"forces.x_jack: cannot be evaluated"):
+        jackbox.load_scene(write_scene(tmp_path, text))
+    assert time.perf_counter() - t0 < 10
