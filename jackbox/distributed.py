@@ -116,6 +116,17 @@ def _checked(bounds) -> list[tuple[int, int]]:
 @contextmanager
 def _client(distributed, address, n_workers, threads_per_worker, connect_timeout, log):
     if address is not None:
+        # the address checked before a Client exists: one made from a bad address and refused stays half
+        # built, and its finaliser waited 20 s for a connection, then printed a traceback
+        from distributed.comm.addressing import parse_address, parse_host_port
+
+        try:
+            scheme, location = parse_address(address)
+            if scheme in ("tcp", "tls"):
+                parse_host_port(location)
+        except (ValueError, TypeError) as exc:
+            raise SimulationError(f"bad Dask scheduler address {address!r} ({exc}); "
+                                  "expected tcp://HOST:PORT") from None
         try:
             client = distributed.Client(address, timeout=connect_timeout, set_as_default=False)
         except ValueError as exc:
