@@ -23,7 +23,7 @@ import warnings
 from pathlib import Path
 
 from . import __version__
-from .errors import CacheWarning, JackboxError, RunStoppedError
+from .errors import CacheWarning, JackboxError, RunStoppedError, SolverWarning
 from .process import end
 
 EPILOG = """\
@@ -120,7 +120,7 @@ def _on_sigterm(handler):
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
     """jackbox's own warnings as one ``jackbox: warning: ...`` line; others as Python prints them."""
-    if issubclass(category, CacheWarning):
+    if issubclass(category, (CacheWarning, SolverWarning)):
         print(f"jackbox: warning: {message}", file=sys.stderr)
     else:
         print(warnings.formatwarning(message, category, filename, lineno, line), end="", file=sys.stderr)
@@ -604,6 +604,9 @@ def cmd_animate(args) -> int:
     from . import animate
 
     out = _out_file(args.out, args.file, "animation.html", ".html")
+    if out.suffix.lower() not in (".html", ".htm"):
+        raise JackboxError(f"{out}: an animation is written as an .html page, not "
+                           f"{out.suffix or 'a name without an extension'}")
     traj = _load_trajectory(args.file)
     path = animate.write_animation(traj, out, plotlyjs=args.plotlyjs, fps=args.fps, speed=args.speed,
                                    max_frames=args.max_frames, trail=args.trail, progress=not args.quiet)

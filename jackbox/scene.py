@@ -221,8 +221,10 @@ def _resolve_override(raw: dict, name: str, source: str) -> tuple[str, str]:
         return "", name
     if len(owners) == 1:
         return owners[0], name
+    slot = SLOT_RULES[name][0] if name in SLOT_RULES else None
     raise SceneError(source, f"--set {name}",
-                     "not a [params] name nor a scene key (use section.key, e.g. impact.restitution)")
+                     "not a [params] name nor a scene key (use section.key, e.g. impact.restitution)"
+                     + (f"; the parameter {name} is the scene key {slot}" if slot else ""))
 
 
 # --- checking -------------------------------------------------------------------------

@@ -186,3 +186,25 @@ def test_a_formula_whose_number_is_astronomical_is_refused_at_once(tmp_path):
     with pytest.raises(SceneError, match=r"forces.x_jack: cannot be evaluated"):
         jackbox.load_scene(write_scene(tmp_path, text))
     assert time.perf_counter() - t0 < 10
+
+
+def test_set_with_a_parameter_slot_name_says_which_scene_key_it_is(tmp_path, capsys):
+    status, _, err = run_cli(capsys, "run", "drop", "--set", "e=0.5", "--t-end", "0.1", "--out", str(tmp_path))
+    assert status == 2 and "the parameter e is the scene key impact.restitution" in err
+
+
+def test_animate_refuses_an_out_that_is_not_a_page(tmp_path, capsys):
+    jackbox.simulate("drop", t_end=0.1).save(tmp_path / "t.npz")
+    status, _, err = run_cli(capsys, "animate", str(tmp_path / "t.npz"), "--out", str(tmp_path / "x.png"))
+    assert status == 2 and "an animation is written as an .html page, not .png" in err
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_a_solver_warning_reaches_the_cli_user_as_one_line(capsys):
+    from jackbox.cli import _show_warning
+    from jackbox.errors import SolverWarning
+
+    _show_warning(SolverWarning("drop: an iterative contact solve stopped before it converged at t = 0.1 s"),
+                  SolverWarning, "/some/module.py", 12)
+    err = capsys.readouterr().err
+    assert err == "jackbox: warning: drop: an iterative contact solve stopped before it converged at t = 0.1 s\n"
