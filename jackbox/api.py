@@ -74,8 +74,11 @@ def prepare(scene, t_end=None, dt=None, record_every=1, params=None, method="exa
     dt = scene.dt if dt is None else float(dt)
     if not (math.isfinite(t_end) and t_end > 0):
         raise SimulationError(f"t_end must be a positive number, got {t_end}")
-    if not (math.isfinite(dt) and 0 < dt <= t_end):
-        raise SimulationError(f"dt must be a positive number no larger than t_end, got {dt}")
+    if not (math.isfinite(dt) and dt > 0):
+        raise SimulationError(f"dt must be a positive number, got {dt}")
+    if dt > t_end:
+        raise SimulationError(f"t_end ({t_end:g} s) is shorter than one step (dt = {dt:g} s): "
+                              "give a longer t_end or a smaller dt")
     if isinstance(record_every, bool) or not isinstance(record_every, (int, np.integer)) or record_every < 1:
         raise SimulationError(f"record_every must be a positive integer, got {record_every!r}")
     if method not in METHODS:

@@ -148,7 +148,7 @@ def _parser() -> argparse.ArgumentParser:
     _simulation_options(run, METHODS)
     run.add_argument("--record-every", type=int, default=1, metavar="K",
                      help="keep every K-th step in the output (default: 1)")
-    run.add_argument("--out", type=Path, metavar="DIR",
+    run.add_argument("--out", type=_out_path, metavar="DIR",
                      help="output folder (default: runs/<scene name>)")
     run.add_argument("--no-plots", action="store_true",
                      help="write the trajectory only: no timeseries.png, no animation.html")
@@ -173,7 +173,7 @@ def _parser() -> argparse.ArgumentParser:
     compare.add_argument("--restitution", "-e", nargs="+", required=True, metavar="E",
                          help="two or more restitutions in [0, 1] (1 elastic, 0 plastic)")
     _simulation_options(compare, METHODS)
-    compare.add_argument("--out", type=Path, metavar="DIR",
+    compare.add_argument("--out", type=_out_path, metavar="DIR",
                          help="output folder (default: runs/<scene name>)")
     compare.add_argument("--quiet", "-q", action="store_true", help="no progress bar or summary")
     compare.set_defaults(func=cmd_compare)
@@ -184,7 +184,7 @@ def _parser() -> argparse.ArgumentParser:
                     "boundary, the jack's shape, the ground, a trail of the jack's centre, impulses "
                     "highlighted; Play/Pause and a time slider. It plays at real time by default.")
     animate.add_argument("file", type=Path, metavar="FILE.npz", help="a trajectory written by jackbox run")
-    animate.add_argument("--out", type=Path, metavar="PATH.html",
+    animate.add_argument("--out", type=_out_path, metavar="PATH.html",
                          help="output page (default: animation.html beside a run's trajectory.npz, "
                               "else FILE with .html)")
     animate.add_argument("--fps", type=_positive, default=25.0,
@@ -204,7 +204,7 @@ def _parser() -> argparse.ArgumentParser:
     plot = sub.add_parser("plot", help="draw the time series of a saved trajectory",
                           description="Write the time series PNG of a trajectory .npz (as jackbox run does).")
     plot.add_argument("file", type=Path, metavar="FILE.npz", help="a trajectory written by jackbox run")
-    plot.add_argument("--out", type=Path, metavar="PATH.png|.pdf|.svg",
+    plot.add_argument("--out", type=_out_path, metavar="PATH.png|.pdf|.svg",
                       help="output image, its format from the extension: png, pdf or svg (default: "
                            "timeseries.png beside a run's trajectory.npz, "
                            "else FILE with .png)")
@@ -224,7 +224,7 @@ def _parser() -> argparse.ArgumentParser:
     _study_options(ens)
     ens.add_argument("--samples", type=float, nargs="+", metavar="T",
                      help="times (s) at which to keep every member's state (rounded to whole steps)")
-    ens.add_argument("--out", type=Path, metavar="DIR", help="output folder (default: runs/<scene name>)")
+    ens.add_argument("--out", type=_out_path, metavar="DIR", help="output folder (default: runs/<scene name>)")
     _lanes_option(ens, "members")
     ens.set_defaults(func=cmd_ensemble)
 
@@ -242,7 +242,7 @@ def _parser() -> argparse.ArgumentParser:
     chaos.add_argument("--d0", type=_positive, default=1e-8, help="twin separation, scaled (default: 1e-8)")
     chaos.add_argument("--renorm", type=_positive, metavar="S",
                        help="seconds between renormalisations (default: 100 steps, or t-end if shorter)")
-    chaos.add_argument("--out", type=Path, metavar="DIR", help="output folder (default: runs/<scene name>)")
+    chaos.add_argument("--out", type=_out_path, metavar="DIR", help="output folder (default: runs/<scene name>)")
     _lanes_option(chaos, "twin pairs")
     chaos.set_defaults(func=cmd_chaos)
 
@@ -424,6 +424,13 @@ def _number(text: str, ok, what: str) -> float:
     if not (math.isfinite(value) and ok(value)):
         raise argparse.ArgumentTypeError(f"must be {what}, got {text}")
     return value
+
+
+def _out_path(text: str) -> Path:
+    """--out: a path, not an empty string (which Path takes for the current folder)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("is empty: name a file or folder (. for this folder)")
+    return Path(text)
 
 
 def _positive(text: str) -> float:

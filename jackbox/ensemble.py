@@ -517,6 +517,11 @@ def _device(device, scheduler, dask_local, lanes=None) -> str:
     """The device a study asked for, checked: one clear line where it cannot be had (and lanes: None or a bool)."""
     if lanes is not None and not isinstance(lanes, (bool, np.bool_)):
         raise SimulationError(f"lanes must be True, False or None (where it pays), got {lanes!r}")
+    if dask_local is not None and (isinstance(dask_local, bool) or not isinstance(dask_local, (int, np.integer))
+                                   or dask_local < 1):
+        raise SimulationError(f"dask_local must be a number of worker processes (1 or more), got {dask_local!r}")
+    if scheduler is not None and not (isinstance(scheduler, str) and scheduler):
+        raise SimulationError(f"scheduler must be a Dask scheduler's address (tcp://HOST:PORT), got {scheduler!r}")
     if not isinstance(device, str) or device not in ("cpu", "cuda"):
         raise SimulationError(f"device must be 'cpu' or 'cuda', got {device!r}")
     if device == "cuda":

@@ -109,6 +109,8 @@ class Trajectory:
             "contact_t": self.contact_t, "contact_constraint": self.contact_constraint,
             "contact_event": self.contact_event, "fallback_t": self.fallback_t,
         }
+        if compress is not None and not isinstance(compress, (bool, np.bool_)):
+            raise JackboxError(f"compress must be True, False or None (by size), got {compress!r}")
         if compress is None:
             compress = sum(a.nbytes for a in arrays.values()) < COMPRESS_BELOW
         save = np.savez_compressed if compress else np.savez

@@ -208,3 +208,23 @@ def test_a_solver_warning_reaches_the_cli_user_as_one_line(capsys):
                   SolverWarning, "/some/module.py", 12)
     err = capsys.readouterr().err
     assert err == "jackbox: warning: drop: an iterative contact solve stopped before it converged at t = 0.1 s\n"
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: jackbox.simulate("drop", t_end=1e-300), r"t_end \(1e-300 s\) is shorter than one step"),
+    (lambda: ensemble("drop", 2, t_end=0.05, dask_local=0), "dask_local must be a number of worker processes"),
+    (lambda: jackbox.simulate("drop", t_end=0.05).save("/tmp/never.npz", compress="no"), "compress must be"),
+])
+def test_more_values_that_used_to_be_taken_or_blamed_on_something_else(call, match):
+    # (t_end below dt was blamed on dt; dask_local=0 ran locally; compress="no" compressed)
+    from jackbox.errors import JackboxError
+
+    with pytest.raises(JackboxError, match=match):
+        call()
+
+
+def test_an_empty_out_is_refused_not_taken_for_this_folder(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    status, _, err = run_cli(capsys, "run", "drop", "--t-end", "0.05", "--out", "")
+    assert status == 2 and "--out: is empty" in err
+    assert list(tmp_path.iterdir()) == []
