@@ -33,7 +33,7 @@ from codegen import Model, derive
 
 from .api import GAP_TOL, REST_TOL, Run, finish, prepare
 from .engine.integrator import NODES, SCALE, WEIGHTS
-from .errors import SimulationError
+from .errors import NonFiniteStateError, SimulationError
 from .scene import Scene, load_scene
 from .trajectory import Trajectory
 
@@ -53,7 +53,10 @@ class Functions:
     gap_bias: Callable | None = None  #: (t, q, qd, p) -> (C,): d^2 phi/dt^2 at qdd = 0 (tests of the compiler)
 
     def accel(self, t, q, qd, p):
-        return np.linalg.solve(self.mass_matrix(p), self.forcing(t, q, qd, p))
+        M, f = self.mass_matrix(p), self.forcing(t, q, qd, p)
+        if not (np.all(np.isfinite(M)) and np.all(np.isfinite(f))):
+            return np.full(len(f), np.nan)     # (LAPACK would print a complaint for each one it is handed)
+        return np.linalg.solve(M, f)
 
 
 def functions(scene: Scene) -> Functions:
@@ -107,6 +110,8 @@ def rk4_step(fn: Functions, t, q, qd, dt, p):
 def solve_lcp(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Smallest active set S with ``A_SS lam_S = -b_S``, ``lam >= 0`` and ``A lam + b >= 0``."""
     m = len(b)
+    if not (np.all(np.isfinite(A)) and np.all(np.isfinite(b))):
+        raise NonFiniteStateError("the reference's impact has non-finite terms (speeds beyond a float's range)")
     tol = 1e-10 * np.abs(b).max()
     for size in range(1, m + 1):
         for S in itertools.combinations(range(m), size):
@@ -121,7 +126,8 @@ def solve_lcp(A: np.ndarray, b: np.ndarray) -> np.ndarray:
             lam = np.maximum(lam, 0.0)
             if np.all((A @ lam + b) >= -tol):
                 return lam
-    raise RuntimeError("impact LCP has no solution (A is not positive semi-definite?)")
+    raise SimulationError("the reference's impact LCP has no solution (its contact matrix is not positive "
+                          "semi-definite to round-off: speeds or sizes far beyond the scene's scales?)")
 
 
 def resolve_impacts(fn: Functions, t, q, qd, p, gap, e_contact):
@@ -388,7 +394,13 @@ def simulate(scene: Scene | str, t_end: float | None = None, dt: float | None = 
     keep(0.0)
     for i in range(run.n_steps):
         t_next = (i + 1) * dt
-        q, qd = rk4_step(fn, i * dt, q, qd, dt, p)
+        with np.errstate(all="ignore"):
+            q, qd = rk4_step(fn, i * dt, q, qd, dt, p)
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
+            # (as the kernel says it; LAPACK would go on to complain of every NaN it is handed)
+            raise NonFiniteStateError(
+                f"{run.scene.name}: the state became non-finite at step {i + 1} (t = {t_next:.6g} s) "
+                f"in the reference; last recorded sample at t = {ts[-1]:.6g} s")
         qd, hit = resolve_impacts(fn, t_next, q, qd, p, fn.phi(t_next, q, p), e_contact)
         imp_t += [t_next] * len(hit)
         imp_k += hit

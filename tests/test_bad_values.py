@@ -228,3 +228,18 @@ def test_an_empty_out_is_refused_not_taken_for_this_folder(tmp_path, capsys, mon
     status, _, err = run_cli(capsys, "run", "drop", "--t-end", "0.05", "--out", "")
     assert status == 2 and "--out: is empty" in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_reference_stops_on_speeds_beyond_a_float_with_one_error_and_no_lapack_noise(capfd):
+    # it printed hundreds of LAPACK "On entry to DLASCL" lines, then raised a bare RuntimeError
+    import warnings
+
+    from jackbox import reference
+    from jackbox.errors import JackboxError
+
+    scene = jackbox.load_scene("drop", {"initial.qd": [0, 0, 0, 1e200, 0, 1e200]})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        with pytest.raises(JackboxError, match="non-finite|no solution"):
+            reference.simulate(scene, t_end=0.05)
+    assert "DLASCL" not in capfd.readouterr().err
