@@ -44,13 +44,15 @@ from .engine.records import DERIVE_CROSS, DERIVE_SQUARE
 from .errors import SimulationError
 from .fileio import write_atomic
 from .progress import progress_bar
-from .scene import COORDS, RATES, Scene, check_param, derived_inertia_inputs, is_number, load_scene
+from .scene import (COORDS, RATES, Scene, check_param, contact_gaps_many, derived_inertia_inputs, is_number,
+                    load_scene)
 
 #: members per kernel call when the progress bar is on (each call is parallel inside)
 CHUNK_MEMBERS = 1024
 #: members per GPU launch with a progress bar (a launch fills the GPU from some 10^5 members)
 GPU_CHUNK = 1 << 18
 STATUS_NAMES = {K.DONE: "done", K.NONFINITE: "non-finite", K.STALLED: "stalled",
+                K.INSIDE: "through a wall unseen (forces or masses beyond what the step resolves)",
                 K.IMPACT_LOG_FULL: "event log full (a GPU member's step had more events than it holds)"}
 #: a perturbed start may touch a wall, but not reach into it by more than this times L
 START_TOL = 1e-9
@@ -185,11 +187,30 @@ def run_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray
     # (the step it reached is kept in `steps`)
     lost = fin[:, 3] != K.DONE
     fin_q[lost], fin_qd[lost], fin[lost, 0] = np.nan, np.nan, np.nan
+    # one that ended inside a wall went through it unseen (forces far beyond what a step resolves): said so
+    inside = ~lost & _inside(spec.scene, fin_q, rows["params"])
+    fin[inside, 3] = K.INSIDE
+    fin_q[inside], fin_qd[inside], fin[inside, 0] = np.nan, np.nan, np.nan
     return {"q": fin_q, "qd": fin_qd, "energy": fin[:, 0], "impacts": fin[:, 1].astype(np.int64),
             "first_impact_t": fin[:, 2], "status": fin[:, 3].astype(np.int64),
             "steps": fin[:, 4].astype(np.int64), "fallback": fin[:, 5], "warnings": fin[:, 6].astype(np.int64),
             "samples_q": samp_q, "samples_qd": samp_qd,
             "q0": rows["q0"], "qd0": rows["qd0"], "params": rows["params"]}
+
+
+def _inside(scene: Scene, Q: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Which of the final states Q (n, 6), with parameter rows P, have a gap below -api.INSIDE_LIMIT L."""
+    names = scene.param_names
+    L, w = P[:, names.index("L")], P[:, names.index("w_box")]
+    if "a_jack" in names:
+        base = scene.param_values[names.index("a_jack")]
+        points = scene.points[None] * (P[:, names.index("a_jack")] / base)[:, None, None]
+    else:
+        points = np.stack([P[:, [names.index(f"jack_x{i}"), names.index(f"jack_y{i}")]]
+                           for i in range(len(scene.points))], axis=1)
+    with np.errstate(invalid="ignore"):
+        gaps = contact_gaps_many(Q, points, L, w, scene.has_ground_contacts)
+        return ~(gaps.min(axis=1) >= -api.INSIDE_LIMIT * L)
 
 
 def run_chaos_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray]:

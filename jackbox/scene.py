@@ -531,6 +531,21 @@ def contact_gaps(q: np.ndarray, points: np.ndarray, L: float, w: float, ground: 
     return np.concatenate(rows)
 
 
+def contact_gaps_many(Q: np.ndarray, points: np.ndarray, L: np.ndarray, w: np.ndarray, ground: bool) -> np.ndarray:
+    """:func:`contact_gaps` of n states at once: Q (n, 6), points (n, P, 2), L and w (n,); returns (n, C)."""
+    xb, yb, tb, xj, yj, tj = (Q[:, k, None] for k in range(6))
+    cj, sj, cb, sb = np.cos(tj), np.sin(tj), np.cos(tb), np.sin(tb)
+    wx = xj + cj * points[:, :, 0] - sj * points[:, :, 1]
+    wy = yj + sj * points[:, :, 0] + cj * points[:, :, 1]
+    dx, dy = wx - xb, wy - yb
+    lx, ly = cb * dx + sb * dy, -sb * dx + cb * dy
+    rows = [L[:, None] - (lx * nx + ly * ny) for nx, ny in WALL_NORMALS]
+    if ground:
+        h = (L + w)[:, None]
+        rows.append(np.concatenate([yb + sb * sx * h + cb * sy * h for sx, sy in CORNER_SIGNS], axis=1))
+    return np.concatenate(rows, axis=1)
+
+
 #: The scene format's rule for each built-in parameter slot (docs/scenes.md): the key
 #: its value comes from in a scene file and its range, (low, high, low_open). The same
 #: rules hold however a value arrives: the file, --set, simulate(params=...), a sweep.

@@ -243,3 +243,22 @@ def test_the_reference_stops_on_speeds_beyond_a_float_with_one_error_and_no_lapa
         with pytest.raises(JackboxError, match="non-finite|no solution"):
             reference.simulate(scene, t_end=0.05)
     assert "DLASCL" not in capfd.readouterr().err
+
+
+def test_ensemble_members_that_went_through_a_wall_unseen_say_so():
+    # the ensemble counterpart of the single run's check: every member of drop at g = 1e20 ended
+    # 1e13 L inside a wall with status done
+    from jackbox.engine import INSIDE
+    from jackbox.scene import contact_gaps, contact_gaps_many
+
+    ens = ensemble(jackbox.load_scene("drop", {"world.gravity": 1e20}), 3, t_end=0.05, lanes=False)
+    assert list(ens.status) == [INSIDE] * 3 and np.isnan(ens.q).all()
+    assert "through a wall unseen" in ens.summary()
+    # the vectorised gaps are the single state's, to the bit
+    scene = jackbox.load_scene("drop")
+    P = scene.params()
+    Q = np.random.default_rng(1).normal(size=(40, 6))
+    many = contact_gaps_many(Q, np.broadcast_to(scene.points, (40,) + scene.points.shape),
+                             np.full(40, P["L"]), np.full(40, P["w_box"]), True)
+    one = np.array([contact_gaps(q, scene.points, P["L"], P["w_box"], True) for q in Q])
+    assert np.array_equal(many, one)

@@ -26,6 +26,8 @@ STALLED = 3             #: (no longer returned by the exact loop: a step it cann
 HANDOFF = 4             #: (inside the exact loop only) this step goes to the fallback
 MISSING = 5             #: a stage this step needs is not compiled (Stages.missing): the caller compiles it and
                         #: calls again from the step returned (the step was undone)
+INSIDE = 6              #: (an ensemble's check of its members' final states, not the loops') a member ended
+                        #: inside a wall: it went through one unseen (jackbox.ensemble.INSIDE_LIMIT)
 
 # bits of Stages.missing: the stages compiled on first need only (a run with no held contact never releases one)
 NEED_RELEASE = 1
