@@ -247,7 +247,6 @@ def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
                         "steps_per_second": run.n_steps / run_seconds if run_seconds > 0 else None}}
     if exact:
         extra["tolerances"] = {"gap": tol[K.T_GAP], "event": tol[K.T_EVENT], "v_rest": tol[K.T_VREST]}
-    if exact:
         check_inside(run, rec_t[:n_rec], rec_q[:n_rec])
     ev_t, ev_k, ev_kind = ev_t[:n_ev], ev_k[:n_ev], ev_kind[:n_ev]
     hit = ev_kind == K.IMPULSE

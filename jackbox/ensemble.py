@@ -678,11 +678,12 @@ def _check_swept(scene: Scene, name: str, slots: list[int], swept: dict[str, str
             raise SimulationError(f"sweep: {swept[slot_name]!r} and {name!r} both set {slot_name}: sweep it once")
         if slot_name in params:
             raise SimulationError(f"{slot_name} is given both in params and in the sweep over {name!r}: give it once")
-        if slot_name.startswith(("jack_x", "jack_y")) and derived_inertia_inputs(scene, slot_name) not in (None, *params):
+        if (scene.shape == "polygon" and derived_inertia_inputs(scene, slot_name) == "J_jack"
+                and "J_jack" not in params):
             # (each member's inertia would be the polygon's own, which the members' setup does not compute)
-            raise SimulationError(f"sweep: {name} moves the jack's inertia, which the scene derives from its "
-                                  "vertices: give jack.inertia in the scene (--set jack.inertia=...) or J_jack in "
-                                  "params to sweep a vertex with that inertia fixed")
+            raise SimulationError(f"sweep: {name} moves the jack's inertia, which the scene derives from the "
+                                  "polygon: give jack.inertia in the scene (--set jack.inertia=...) or J_jack in "
+                                  "params to sweep it with that inertia fixed")
         swept[slot_name] = name
 
 
@@ -731,8 +732,12 @@ def _side(n: int, k: int) -> int | None:
 def _sample_steps(samples, run: api.Run) -> tuple[int, ...]:
     if samples is None:
         return ()
-    values = list(np.ravel(samples)) if isinstance(samples, (list, tuple, np.ndarray)) else [samples]
-    if not values or not all(is_number(v) for v in values) or np.ndim(samples) > 1:
+    try:
+        flat = np.ndim(samples) <= 1
+        values = list(np.ravel(samples)) if isinstance(samples, (list, tuple, np.ndarray)) else [samples]
+    except ValueError:            # (a ragged list)
+        flat, values = False, []
+    if not flat or not values or not all(is_number(v) for v in values):
         raise SimulationError(f"samples must be a time or a list of times (s), got {samples!r}")
     times = np.array(values, float)
     if not np.all(np.isfinite(times)) or times.min(initial=0.0) < 0 or times.max(initial=0.0) > run.n_steps * run.dt * (1 + 1e-12):

@@ -157,7 +157,7 @@ def _inconsistency(arrays: dict) -> str | None:
             return f"{key} has shape {arrays[key].shape}, expected {shape} (t has {n} samples)"
     names = arrays["constraint_names"]
     for times, index in (("impact_t", "impact_constraint"), ("contact_t", "contact_constraint")):
-        if times not in arrays:
+        if times not in arrays or index not in arrays:
             continue
         t_, k_ = arrays[times], arrays[index]
         if t_.ndim != 1 or k_.shape != t_.shape:

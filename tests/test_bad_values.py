@@ -91,8 +91,9 @@ def test_a_chaos_study_shorter_than_the_default_interval_renormalises_at_its_end
 
 def test_a_polygons_vertex_is_swept_only_with_its_inertia_fixed(tmp_path):
     scene = write_scene(tmp_path, PRESCRIBED)          # a polygon jack, its inertia derived
-    with pytest.raises(SimulationError, match="derives from its vertices: give jack.inertia"):
-        ensemble(scene, 3, sweep={"jack_x0": (0.25, 0.35)}, t_end=0.05)
+    for name, rng in (("jack_x0", (0.25, 0.35)), ("m_jack", (1.0, 2.0))):
+        with pytest.raises(SimulationError, match="derives from the polygon: give jack.inertia"):
+            ensemble(scene, 3, sweep={name: rng}, t_end=0.05)
     fixed = {"J_jack": jackbox.load_scene(scene).params()["J_jack"]}
     assert np.all(ensemble(scene, 3, sweep={"jack_x0": (0.25, 0.35)}, params=fixed, t_end=0.05).status == DONE)
 
@@ -125,6 +126,7 @@ def test_a_run_that_goes_through_a_wall_unseen_says_so(overrides, t_end, tmp_pat
     (lambda: ensemble("drop", 2, t_end=0.05, threads="2"), "threads must be a whole number"),
     (lambda: ensemble("drop", 2, t_end=0.05, samples=["a"]), "samples must be a time"),
     (lambda: ensemble("drop", 2, t_end=0.05, samples=[[0.01, 0.02]]), "samples must be a time"),
+    (lambda: ensemble("drop", 2, t_end=0.05, samples=[[0.01, 0.02], [0.03]]), "samples must be a time"),
     (lambda: ensemble("drop", 2, t_end=0.05, perturb=["x_jack"]), "perturb must be a dict"),
     (lambda: chaos("drop", 2, t_end=0.05, sweep=[("e", 0.1, 1.0)]), "sweep must be a dict"),
 ])
