@@ -24,7 +24,7 @@ from . import engine as K
 from .engine.tolerances import EVENT_TOL, GAP_TOL, REST_TOL  # noqa: F401  (the exact method's, relative to L)
 from .errors import NonFiniteStateError, RunStoppedError, SimulationError, SolverWarning
 from .progress import progress_bar
-from .scene import Scene, contact_gaps, is_number, jack_points, load_scene, param_array
+from .scene import Scene, contact_gaps, contact_gaps_many, is_number, jack_points, load_scene, param_array
 from .trajectory import Trajectory
 
 CHUNK = 1 << 15          #: steps per kernel call (progress granularity)
@@ -270,22 +270,33 @@ INSIDE_LIMIT = 1e-6
 INSIDE_SAMPLES = 101
 
 
+def inside(scene: Scene, Q: np.ndarray, P: dict) -> np.ndarray:
+    """Which of the states Q (n, 6) have a gap below -INSIDE_LIMIT L; P: parameter values, floats or (n,) rows."""
+    n = Q.shape[0]
+    points = np.broadcast_to(jack_points(scene, P), (n, len(scene.points), 2))
+    L, w = (np.broadcast_to(np.asarray(P[k], float), (n,)) for k in ("L", "w_box"))
+    with np.errstate(invalid="ignore"):
+        gaps = contact_gaps_many(Q, points, L, w, scene.has_ground_contacts)
+        return ~(gaps.min(axis=1) >= -INSIDE_LIMIT * L)
+
+
 def check_inside(run: Run, t: np.ndarray, q: np.ndarray) -> None:
     """Refuse an exact run whose jack ended up inside a wall or the box under the ground (see INSIDE_LIMIT)."""
     if len(t) == 0:
         return
     scene = run.scene
     P = dict(zip(scene.param_names, run.p.tolist()))
-    points, L = jack_points(scene, P), P["L"]
-    for i in np.unique(np.linspace(0, len(t) - 1, min(len(t), INSIDE_SAMPLES)).round().astype(int)):
-        gaps = contact_gaps(q[i], points, L, P["w_box"], scene.has_ground_contacts)
-        worst = int(np.argmin(gaps))
-        if not gaps[worst] >= -INSIDE_LIMIT * L:
-            raise RunStoppedError(
-                f"{scene.name}: at t = {t[i]:.6g} s contact {scene.constraint_names[worst]!r} is "
-                f"{-gaps[worst]:.3g} inside ({-gaps[worst] / L:.3g} L): the run went through a wall unseen. "
-                f"Its forces or masses are beyond what a step of dt = {run.dt:g} s resolves: try a smaller dt "
-                f"or check the parameters")
+    looked = np.unique(np.linspace(0, len(t) - 1, min(len(t), INSIDE_SAMPLES)).round().astype(int))
+    bad = looked[inside(scene, q[looked], P)]
+    if len(bad):
+        i = bad[0]
+        gaps = contact_gaps(q[i], jack_points(scene, P), P["L"], P["w_box"], scene.has_ground_contacts)
+        worst, L = int(np.argmin(gaps)), P["L"]
+        raise RunStoppedError(
+            f"{scene.name}: at t = {t[i]:.6g} s contact {scene.constraint_names[worst]!r} is "
+            f"{-gaps[worst]:.3g} inside ({-gaps[worst] / L:.3g} L): the run went through a wall unseen. "
+            f"Its forces or masses are beyond what a step of dt = {run.dt:g} s resolves: try a smaller dt "
+            f"or check the parameters")
 
 
 #: what each WARNING code of the engine means, for a user

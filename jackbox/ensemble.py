@@ -44,8 +44,7 @@ from .engine.records import DERIVE_CROSS, DERIVE_SQUARE
 from .errors import SimulationError
 from .fileio import write_atomic
 from .progress import progress_bar
-from .scene import (COORDS, RATES, Scene, check_param, contact_gaps_many, derived_inertia_inputs, is_number,
-                    load_scene)
+from .scene import COORDS, RATES, Scene, check_param, derived_inertia_inputs, is_number, load_scene
 
 #: members per kernel call when the progress bar is on (each call is parallel inside)
 CHUNK_MEMBERS = 1024
@@ -200,17 +199,7 @@ def run_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray
 
 def _inside(scene: Scene, Q: np.ndarray, P: np.ndarray) -> np.ndarray:
     """Which of the final states Q (n, 6), with parameter rows P, have a gap below -api.INSIDE_LIMIT L."""
-    names = scene.param_names
-    L, w = P[:, names.index("L")], P[:, names.index("w_box")]
-    if "a_jack" in names:
-        base = scene.param_values[names.index("a_jack")]
-        points = scene.points[None] * (P[:, names.index("a_jack")] / base)[:, None, None]
-    else:
-        points = np.stack([P[:, [names.index(f"jack_x{i}"), names.index(f"jack_y{i}")]]
-                           for i in range(len(scene.points))], axis=1)
-    with np.errstate(invalid="ignore"):
-        gaps = contact_gaps_many(Q, points, L, w, scene.has_ground_contacts)
-        return ~(gaps.min(axis=1) >= -api.INSIDE_LIMIT * L)
+    return api.inside(scene, Q, dict(zip(scene.param_names, P.T)))
 
 
 def run_chaos_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray]:

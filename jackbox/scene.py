@@ -653,12 +653,14 @@ def rederive_inertias(scene: "Scene", p: np.ndarray, given: dict[str, Any]) -> N
         p[scene.param_names.index(slot)] = value
 
 
-def jack_points(scene: "Scene", P: dict[str, float]) -> np.ndarray:
-    """The jack's contact points in its frame for the parameter values P (its size or vertices)."""
+def jack_points(scene: "Scene", P: dict) -> np.ndarray:
+    """The jack's contact points in its frame for the parameter values P (its size or vertices): (points, 2),
+    or (n, points, 2) where P's values are (n,) arrays (one row of parameters a member)."""
     if "a_jack" in P:
         base = scene.param_values[scene.param_names.index("a_jack")]
-        return scene.points * (P["a_jack"] / base)
-    return np.array([[P[f"jack_x{i}"], P[f"jack_y{i}"]] for i in range(len(scene.points))])
+        return scene.points * (np.asarray(P["a_jack"]) / base)[..., None, None]
+    return np.stack([np.stack([P[f"jack_x{i}"], P[f"jack_y{i}"]], axis=-1) for i in range(len(scene.points))],
+                    axis=-2)
 
 
 def check_start(scene: "Scene", p: np.ndarray, where: str) -> None:

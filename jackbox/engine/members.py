@@ -430,15 +430,6 @@ def start_lane(model, exact, stages, B, lane, q, qd, p, tol, dt, out, log):
 
 
 @njit(cache=True, no_cpython_wrapper=True, _nrt=False)
-def lane_free(rests, lane, C):
-    """:func:`is_free` for lane ``lane`` of a block's modes (rests[lane]), read in place (no view)."""
-    for k in range(C + MODE_AT + 1):
-        if rests[lane, k] != 0:
-            return False
-    return True
-
-
-@njit(cache=True, no_cpython_wrapper=True, _nrt=False)
 def mark_chunk(alive, rests, live, back, C, todo):
     """A chunk's start: each lane live (alive and free) or not, none back from a stretch alone.
 
@@ -453,7 +444,7 @@ def mark_chunk(alive, rests, live, back, C, todo):
     """
     n = 0
     for lane in range(LANES):
-        live[lane] = 1 if alive[lane] == 1 and lane_free(rests, lane, C) else 0
+        live[lane] = 1 if alive[lane] == 1 and is_free(rests[lane], C) else 0
         back[lane] = -1
         if alive[lane] == 1 and live[lane] == 0:
             todo[n] = lane
@@ -530,7 +521,7 @@ def block_to(model, exact, stages, B, p, tol, dt, i, stop, out, log):
                 lane = todo[t]
                 put_lane(S, lane, B.held_q[lane], B.held_qd[lane])
                 back[lane] = -1
-                if alive[lane] == 1 and lane_free(rests, lane, C):
+                if alive[lane] == 1 and is_free(rests[lane], C):
                     live[lane] = 1
                 elif alive[lane] == 1:
                     back[lane] = end
