@@ -211,13 +211,25 @@ def run_chaos_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.n
     offset = rows["offset"]
     m = stop - start
     n_intervals = -(-spec.n_steps // spec.renorm_steps)
-    stretch, fin = np.zeros((m, n_intervals)), np.zeros((m, 5))
+    stretch, fin = np.zeros((m, n_intervals)), np.zeros((m, K.TWIN_FIN + 2 * n_dof))
     kernel.run_twin_members(rows["q0"], rows["qd0"], np.ascontiguousarray(offset[:, :n_dof]),
                             np.ascontiguousarray(offset[:, n_dof:]), rows["params"], rows["tol"], spec.dt,
                             spec.n_steps, spec.renorm_steps, _chaos_scale(spec), stretch, fin,
                             lanes=spec.device == "cpu" and use_lanes(spec, kernel), device=spec.device)
-    return {"stretch": stretch, "impacts": fin[:, 0].astype(np.int64), "status": fin[:, 1].astype(np.int64),
+    status = fin[:, 1].astype(np.int64)
+    fin_q = fin[:, K.TWIN_FIN:K.TWIN_FIN + n_dof].copy()
+    fin_qd = fin[:, K.TWIN_FIN + n_dof:].copy()
+    lost = status != K.DONE
+    fin_q[lost], fin_qd[lost] = np.nan, np.nan
+    # a pair whose reference ended inside a wall went through it unseen: its stretches measure that, not the
+    # dynamics (the twin is put back next to the reference at each renormalisation, so the reference's final
+    # state speaks for both)
+    inside = ~lost & _inside(spec.scene, fin_q, rows["params"])
+    status[inside] = K.INSIDE
+    fin_q[inside], fin_qd[inside], stretch[inside] = np.nan, np.nan, np.nan
+    return {"stretch": stretch, "impacts": fin[:, 0].astype(np.int64), "status": status,
             "steps": fin[:, 2].astype(np.int64), "fallback": fin[:, 3], "warnings": fin[:, 4].astype(np.int64),
+            "q": fin_q, "qd": fin_qd,
             "q0": rows["q0"], "qd0": rows["qd0"], "params": rows["params"], "offset": offset}
 
 
@@ -309,6 +321,8 @@ class ChaosStudy:
     steps: np.ndarray
     fallback: np.ndarray          #: (n,) simulated seconds either twin spent in the fallback
     warnings: np.ndarray          #: (n,) solver warnings of both twins
+    q: np.ndarray                 #: (n, 6) the reference's final coordinates (NaN: not completed)
+    qd: np.ndarray                #: (n, 6) and rates
     q0: np.ndarray
     qd0: np.ndarray
     params: np.ndarray
@@ -356,7 +370,7 @@ class ChaosStudy:
     def save(self, path) -> Path:
         arrays = {"times": self.times, "stretch": self.stretch, "growth": self.growth, "ftle": self.ftle,
                   "impacts": self.impacts, "status": self.status, "steps": self.steps, "fallback": self.fallback,
-                  "warnings": self.warnings, "q0": self.q0,
+                  "warnings": self.warnings, "q": self.q, "qd": self.qd, "q0": self.q0,
                   "qd0": self.qd0, "params": self.params, "offset": self.offset}
         return _save(path, arrays, self.spec, self.meta)
 

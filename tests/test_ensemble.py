@@ -382,7 +382,7 @@ def assert_ftle_statistics(stdout: str, ftle: np.ndarray):
     assert got["p90"] == pytest.approx(p90, rel=5e-4)
 
 
-CHAOS_ARRAYS = ("times", "stretch", "growth", "ftle", "impacts", "status", "steps", "q0", "qd0", "params", "offset")
+CHAOS_ARRAYS = ("times", "stretch", "growth", "ftle", "impacts", "status", "steps", "q", "qd", "q0", "qd0", "params", "offset")
 
 
 def test_cli_chaos_with_perturb_and_sweep(tmp_path, capsys):
@@ -475,6 +475,19 @@ def test_members_that_stop_early_have_the_status_of_their_single_run():
     assert re.search(rf"\b{sum(counts.values())}\b", named[0].split("non-finite")[0]), named
     m = re.search(r"first impulse: (\d+) members", ens.summary())
     assert m and int(m[1]) == np.isfinite(ens.first_impact_t).sum()
+
+
+@pytest.mark.parametrize("lanes", [False, True])
+def test_a_chaos_reference_ends_where_the_ensemble_member_ends(lanes):
+    # the reference of each pair is the member itself, never moved by its twin's renormalisations:
+    # its final state (the one the study checks for a pair that went through a wall) is the
+    # ensemble's, to the bit, alone and in lanes, across a split of the study
+    study = dict(t_end=1.5, seed=4, perturb={"theta_jack": 1e-3, "x_jack_dot": 0.1}, lanes=lanes)
+    pairs = E.chaos("shaken", 20, renorm=0.05, chunk=7, **study)
+    members = E.ensemble("shaken", 20, **study)
+    assert np.all(pairs.status == 0) and np.all(members.impacts > 0)
+    assert same_bits(pairs.q, members.q) and same_bits(pairs.qd, members.qd)
+    assert same_bits(pairs.impacts, members.impacts)
 
 
 def test_chaos_members_that_stop_early_have_no_ftle():

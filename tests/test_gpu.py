@@ -63,6 +63,7 @@ for name, path, over, n, t in json.loads(sys.argv[1]):
 c = chaos("drop", 2, t_end=0.3, renorm=0.1, perturb={"theta_jack": 0.3})
 d = chaos("drop", 2, t_end=0.3, renorm=0.1, perturb={"theta_jack": 0.3}, device="cuda")
 out["chaos"] = {"stretch": same(c.stretch, d.stretch), "impacts": same(c.impacts, d.impacts),
+                "q": same(c.q, d.q) and same(c.qd, d.qd),
                 "finite": bool(np.isfinite(c.stretch).all())}
 print(json.dumps(out))
 """
@@ -95,7 +96,7 @@ def test_the_gpus_kernels_give_the_cpus_numbers_on_the_simulator(tmp_path, round
         differ = [key for key, equal in out[name].items() if equal is False]
         assert not differ, f"{name}: the GPU's {', '.join(differ)} differ from the CPU's"
     assert out["drop"]["impulses"] > 0          # the contact path ran
-    assert out["chaos"] == {"stretch": True, "impacts": True, "finite": True}
+    assert out["chaos"] == {"stretch": True, "impacts": True, "q": True, "finite": True}
 
 
 @needs_numba_cuda

@@ -140,7 +140,7 @@ def test_a_member_that_turns_non_finite_in_a_block_says_so_as_alone(entries):
 
 
 #: every array of a chaos study that the engine fills
-CHAOS_ARRAYS = ("stretch", "impacts", "status", "steps", "fallback", "warnings", "q0", "qd0", "params", "offset")
+CHAOS_ARRAYS = ("stretch", "impacts", "status", "steps", "fallback", "warnings", "q", "qd", "q0", "qd0", "params", "offset")
 
 
 @pytest.mark.parametrize("name, over, t_end, kw", [

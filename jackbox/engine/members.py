@@ -26,7 +26,7 @@ from .gaps import speed_bound
 from .modes import time_resolution, within_reach
 from .records import (DERIVE_CROSS, DONE, EXACT_AT, FALLBACK, IMPACT_LOG_FULL, IMPULSE, LANES, MODE_AT, MODE_SLOTS, MODEL_AT,
                       STAGES_AT, T_BOXV, T_GAP, WARNING, BLOCK_ROWS, BOUND_ROW, SPEED_ROW, Events, ExactType, ModelType, Samples,
-                      StagesType, from_table)
+                      StagesType, from_table, TWIN_FIN)
 from .tolerances import set_tolerances
 
 #: tally slots of one member: impulses so far, time of the first one (NaN if none), when the
@@ -226,7 +226,9 @@ def run_twins(model, exact, stages, q0, qd0, dq, dqd, p, tol, dt, n_steps, renor
     state moved): the contact update runs at its next step, unless it would
     change nothing there (:func:`needs_update`).
     fin: [impulses of the reference, status, step reached, seconds either
-    twin spent in the fallback, solver warnings of both].
+    twin spent in the fallback, solver warnings of both], then from
+    :data:`TWIN_FIN` the reference's coordinates and rates where it ended (the
+    study checks them for a pair that went through a wall unseen).
     """
     follow_twins(model, exact, stages, q0.copy(), qd0.copy(), q0.copy(), qd0.copy(), dq, dqd, p, tol, dt, n_steps,
                  renorm_steps, scale, stretch, fin, new_modes(model), new_modes(model), new_log(LOG_SIZE),
@@ -271,6 +273,9 @@ def follow_twins(model, exact, stages, q, qd, qt, qdt, dq, dqd, p, tol, dt, n_st
     fin[2] = i
     fin[3] = fallback_time(tally, i * dt) + fallback_time(tally_t, i2 * dt)
     fin[4] = tally[TALLY_WARNINGS] + tally_t[TALLY_WARNINGS]
+    for d in range(n):
+        fin[TWIN_FIN + d] = q[d]
+        fin[TWIN_FIN + n + d] = qd[d]
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -736,6 +741,10 @@ def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, dt, n_steps, 
         fin[j, 2] = step[r]
         fin[j, 3] = fallback_time(tally, step[r] * dt) + fallback_time(tally_t, step_t[r] * dt)
         fin[j, 4] = tally[TALLY_WARNINGS] + tally_t[TALLY_WARNINGS]
+        take_lane(B.S, r, q, qd)
+        for d in range(n):
+            fin[j, TWIN_FIN + d] = q[d]
+            fin[j, TWIN_FIN + n + d] = qd[d]
 
 
 @njit(cache=True)
