@@ -223,7 +223,8 @@ def _parser() -> argparse.ArgumentParser:
     ens.add_argument("scene", help="built-in scene name or path to a .toml scene file")
     _study_options(ens)
     ens.add_argument("--samples", type=float, nargs="+", metavar="T",
-                     help="times (s) at which to keep every member's state (rounded to whole steps)")
+                     help="increasing times (s) at which to keep every member's state (rounded to whole steps, "
+                          "at least one step apart)")
     ens.add_argument("--out", type=_out_path, metavar="DIR", help="output folder (default: runs/<scene name>)")
     _lanes_option(ens, "members")
     ens.set_defaults(func=cmd_ensemble)

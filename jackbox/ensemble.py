@@ -745,7 +745,17 @@ def _sample_steps(samples, run: api.Run) -> tuple[int, ...]:
     times = np.array(values, float)
     if not np.all(np.isfinite(times)) or times.min(initial=0.0) < 0 or times.max(initial=0.0) > run.n_steps * run.dt * (1 + 1e-12):
         raise SimulationError(f"samples must be times between 0 and t_end = {run.n_steps * run.dt:g} s")
-    return tuple(sorted({int(round(t / run.dt)) for t in times}))
+    steps = [int(round(t / run.dt)) for t in times]
+    for k in range(1, len(steps)):
+        # samples_q[:, k] is the state at samples[k]: times out of order, or two on one step, would leave
+        # the columns at other times than asked for, or fewer of them
+        if steps[k] <= steps[k - 1]:
+            same = steps[k] == steps[k - 1]
+            raise SimulationError(
+                f"samples must be increasing times at least one step (dt = {run.dt:g} s) apart: "
+                f"{times[k - 1]:g} and {times[k]:g} " + (f"fall on the same step (t = {steps[k] * run.dt:g} s)"
+                                                          if same else "are out of order"))
+    return tuple(steps)
 
 
 def _save(path, arrays: dict, spec: EnsembleSpec, meta: dict) -> Path:

@@ -127,6 +127,8 @@ def test_a_run_that_goes_through_a_wall_unseen_says_so(overrides, t_end, tmp_pat
     (lambda: ensemble("drop", 2, t_end=0.05, samples=["a"]), "samples must be a time"),
     (lambda: ensemble("drop", 2, t_end=0.05, samples=[[0.01, 0.02]]), "samples must be a time"),
     (lambda: ensemble("drop", 2, t_end=0.05, samples=[[0.01, 0.02], [0.03]]), "samples must be a time"),
+    (lambda: ensemble("drop", 2, t_end=0.05, samples=[0.04, 0.02]), "0.04 and 0.02 are out of order"),
+    (lambda: ensemble("drop", 2, t_end=0.05, samples=[0.02, 0.0204]), r"fall on the same step \(t = 0.02 s\)"),
     (lambda: ensemble("drop", 2, t_end=0.05, perturb=["x_jack"]), "perturb must be a dict"),
     (lambda: chaos("drop", 2, t_end=0.05, sweep=[("e", 0.1, 1.0)]), "sweep must be a dict"),
 ])
