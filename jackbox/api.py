@@ -52,6 +52,9 @@ class Run:
     n_steps: int
     record_every: int
     method: str
+    #: a prescribed box's speed bound to use instead of its own parameters' (a member of a study that sweeps
+    #: the box's motion: the study's, over the swept range); None: from p
+    box_speed: float | None = None
 
     @property
     def n_samples(self) -> int:
@@ -132,10 +135,44 @@ def tolerances(run: Run, kernel) -> np.ndarray:
 
     Computed by the engine (:mod:`jackbox.engine.tolerances`, where the rules
     are), which fills an ensemble member's row the same way: a member and its
-    single run get the same tolerances to the last bit.
+    single run get the same tolerances to the last bit (a prescribed box's
+    speed bound, :func:`box_speed_bound`, too).
     """
     factor, n_points = jack_radius_rule(run.scene)
-    return kernel.tolerances(run.p, factor, n_points, run.n_steps, run.dt)
+    speed = 0.0
+    if run.scene.prescribed:
+        speed = run.box_speed if run.box_speed is not None else float(box_speed_bound(run.scene, run.p,
+                                                                                      run.n_steps * run.dt)[0])
+    return kernel.tolerances(run.p, factor, n_points, run.dt, speed)
+
+
+def box_speed_bound(scene: Scene, P: np.ndarray, t_end: float, ranges: dict | None = None) -> np.ndarray:
+    """(m,) bounds on the speed of any point of a prescribed box over [0, t_end], one per parameter row of P.
+
+    ranges: ``{name: (lo, hi)}``, parameters that take every value in a range
+    (a study's sweep: one bound for all its members) instead of P's.
+
+    From the motion's formulas on intervals of time (:mod:`jackbox.intervals`):
+    ``|(x', y')| + |theta'| r_box`` on each piece, r_box the box's outer
+    half-diagonal; infinite where a formula may be undefined or unbounded
+    (every gap is then looked at every step). Rounded up onto a coarse grid
+    (a last-bit difference of the inputs gives the same bound). Checked
+    against the motion sampled finely in tests/test_intervals.py.
+    """
+    from codegen import BASE_SYMBOLS, parse_formula
+
+    from .intervals import rate_bounds, round_up
+
+    P = np.atleast_2d(np.asarray(P, float))
+    values = dict(zip(scene.param_names, P.T)) | {name: (float(lo), float(hi)) for name, (lo, hi) in
+                                                  (ranges or {}).items()}
+    constants = set(BASE_SYMBOLS) | set(scene.user_params) | {"t"}
+    x, y, theta = (rate_bounds(parse_formula(f, constants), t_end, values) for f in scene.motion)
+    high = {name: np.asarray(v[1] if isinstance(v, tuple) else v, float) for name, v in values.items()}
+    r_box = math.sqrt(2.0) * (high["L"] + high["w_box"])
+    with np.errstate(over="ignore", invalid="ignore"):
+        speed = np.hypot(x, y) + theta * r_box[:, None]
+    return round_up(np.where(np.isnan(speed), np.inf, speed).max(axis=1))
 
 
 def jack_radius_rule(scene: Scene) -> tuple[float, int]:

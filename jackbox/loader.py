@@ -613,10 +613,10 @@ class Kernel:
     def set_up_members(self, setup, Q0, QD0, P, TOL, OFFSET, GAP):
         return engine.entry("set_up_members")(self.table(()), setup, Q0, QD0, P, TOL, OFFSET, GAP)
 
-    def tolerances(self, p, jack_factor, n_points, n_steps, dt):
+    def tolerances(self, p, jack_factor, n_points, dt, box_speed):
         out = np.empty(engine.T_SPEED + self.N_DOF)
-        engine.entry("fill_tolerances")(self.table(()), p, float(jack_factor), int(n_points), int(n_steps),
-                                        float(dt), out)
+        engine.entry("fill_tolerances")(self.table(()), p, float(jack_factor), int(n_points), float(dt),
+                                        float(box_speed), out)
         return out
 
 

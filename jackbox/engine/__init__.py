@@ -61,7 +61,7 @@ ENTRIES = {
     "run_twin_members": ("members", (I2, V2, V2, V2, V2, V2, V2, F8, I8, I8, V1, V2, V2)),
     "run_twin_member_blocks": ("members", (I2, V2, V2, V2, V2, V2, V2, F8, I8, I8, V1, V2, V2)),
     "set_up_members": ("members", (I2, SetupType, V2, V2, V2, V2, V2, V1)),
-    "fill_tolerances": ("tolerances", (I2, V1, F8, I8, I8, F8, V1)),
+    "fill_tolerances": ("tolerances", (I2, V1, F8, I8, F8, F8, V1)),
 }
 #: the entry points that run a prange loop (Numba's threads must be started before one is loaded)
 PARALLEL = ("run_members", "run_member_blocks", "run_twin_members", "run_twin_member_blocks", "set_up_members")

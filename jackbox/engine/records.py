@@ -161,14 +161,14 @@ EventsType = types.NamedTuple([V1, I1, I1], Events)
 #: the shared start (integrated DOFs), parameters and tolerance row; the state slots perturbed (q[i]
 #: for i < n_dof, else qd[i - n_dof]) and their half-widths, on a grid of this side (0: random draws);
 #: the parameter slots swept, the axis giving each its value, each axis's first and last value and the
-#: members along it (0: no sweep); whether a sweep moves a prescribed box (its speed bound is then
-#: sampled again); the jack's bounding radius (jackbox.engine.tolerances.set_tolerances); the run's
-#: steps and dt; the seed and the index of the first member set up; chaos twins' scaled distance (0:
-#: no twins) and the state's scale
+#: members along it (0: no sweep); the jack's bounding radius (jackbox.engine.tolerances.set_tolerances);
+#: the run's dt; the seed and the index of the first member set up; chaos twins' scaled distance (0:
+#: no twins) and the state's scale. (A sweep that moves a prescribed box: each member's speed bound is
+#: written by the caller, jackbox.ensemble._set_up.)
 Setup = namedtuple("Setup", ["q", "qd", "p", "tol", "perturb_at", "perturb_by", "grid", "sweep_at", "sweep_axis",
-                             "sweep_lo", "sweep_hi", "sweep_side", "box_swept", "jack_factor", "n_points", "n_steps",
+                             "sweep_lo", "sweep_hi", "sweep_side", "jack_factor", "n_points",
                              "dt", "seed", "first", "d0", "scale", "derive"])
-SetupType = types.NamedTuple([V1, V1, V1, V1, I1, V1, I8, I1, I1, V1, V1, I8, I8, F8, I8, I8, F8, I8, I8, F8, V1, I1],
+SetupType = types.NamedTuple([V1, V1, V1, V1, I1, V1, I8, I1, I1, V1, V1, I8, F8, I8, F8, I8, I8, F8, V1, I1],
                              Setup)
 #: Setup.derive: the slots of the inertias a sweep moves because the scene derives them (each -1 where
 #: none): the box's J_box, m_box, L, w_box, then the jack's J_jack, m_jack, a_jack and its shape

@@ -17,14 +17,14 @@ impulse and becomes persistent, which ends a Zeno cascade of bounces
 (remaining flight time below 2e-7 sqrt(L/g) e / (1 - e)). A closed contact
 whose gap would accelerate away at less than 1e-12 L / dt^2 (it leaves by
 less than the event depth in a step) is still: it stays held. Speed bounds (the largest rate of change
-of any gap per unit of each rate, and of a prescribed box's motion) decide
+of any gap per unit of each rate, and of any point of a prescribed box,
+bounded from its motion's formulas by jackbox.intervals) decide
 which steps need the in-step dip test; the bounding radii of the jack and the
 box feed the broad phase.
 """
 
 import math
 
-import numpy as np
 from numba import njit
 
 from .records import (MODEL_AT, T_AREST, T_BOXV, T_EVENT, T_GAP, T_RBOX, T_RJACK, T_SPEED, T_VREST, T_WALL,
@@ -37,30 +37,15 @@ WEIGHTLESS_SPEED = 1e-3
 #: parameter slots read here (jackbox.scene.BASE_PARAMS: m_box, J_box, L, w_box, m_jack, J_jack, g, e,
 #: e_ground), then a_jack, or each vertex's x and y of a polygon jack
 L_AT, W_BOX_AT, G_AT, JACK_AT = 2, 3, 6, 9
-#: samples of a prescribed box's motion: 4 per step, at least 2001 and at most 20001
-BOX_SAMPLES_PER_STEP, BOX_SAMPLES_MIN, BOX_SAMPLES_MAX = 4, 2001, 20001
-
-
 @njit(cache=True, no_cpython_wrapper=True)
-def box_speed_bound(model, p, t_end, n_samples, r_box):
-    """Largest speed of any point of a prescribed box over [0, t_end], sampled at n_samples times."""
-    speed = 0.0
-    box = np.empty(6)
-    for j in range(n_samples):
-        model.box_motion(t_end * j / max(n_samples - 1, 1), p, box)
-        speed = max(speed, math.hypot(box[3], box[4]) + abs(box[5]) * r_box)
-    return speed
-
-
-@njit(cache=True, no_cpython_wrapper=True)
-def set_tolerances(model, p, jack_factor, n_points, n_steps, dt, boxv, out):
+def set_tolerances(model, p, jack_factor, n_points, dt, boxv, out):
     """Fill ``out`` (T_SPEED + n_dof slots) for parameters p.
 
     The jack's bounding radius is a_jack times jack_factor (1 for a cross, sqrt 2
     for a square), or with n_points > 0 the farthest of a polygon's vertices.
-    boxv: the bound on a prescribed box's speed (slot T_BOXV) when the caller
-    knows it (the parameters that move the box are a study's shared ones);
-    negative: sample the box's motion here (many calls of ``box_motion``).
+    boxv: a bound on the speed of any point of a prescribed box (slot T_BOXV),
+    which the caller derives from the motion's formulas
+    (:func:`jackbox.api.box_speed_bound`); unused for a free box.
     """
     L, w, g = p[L_AT], p[W_BOX_AT], abs(p[G_AT])
     v_scale = math.sqrt(g * L) if g > 0 else WEIGHTLESS_SPEED * L / dt
@@ -82,10 +67,6 @@ def set_tolerances(model, p, jack_factor, n_points, n_steps, dt, boxv, out):
     out[T_RBOX] = r_box
     at = T_SPEED
     if model.prescribed:
-        if boxv < 0.0:
-            # sample the box's motion densely; twice the largest speed seen bounds it
-            samples = min(max(BOX_SAMPLES_MIN, BOX_SAMPLES_PER_STEP * n_steps + 1), BOX_SAMPLES_MAX)
-            boxv = 2.0 * box_speed_bound(model, p, n_steps * dt, samples, r_box)
         out[T_BOXV] = boxv
     else:
         # x, y, theta of the box
@@ -96,6 +77,6 @@ def set_tolerances(model, p, jack_factor, n_points, n_steps, dt, boxv, out):
 
 
 @njit(cache=True)
-def fill_tolerances(table, p, jack_factor, n_points, n_steps, dt, out):
-    """:func:`set_tolerances` for the model in ``table`` (the box's speed sampled when it is prescribed)."""
-    set_tolerances(from_table(table, MODEL_AT, ModelType), p, jack_factor, n_points, n_steps, dt, -1.0, out)
+def fill_tolerances(table, p, jack_factor, n_points, dt, boxv, out):
+    """:func:`set_tolerances` for the model in ``table``."""
+    set_tolerances(from_table(table, MODEL_AT, ModelType), p, jack_factor, n_points, dt, boxv, out)
