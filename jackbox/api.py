@@ -154,8 +154,10 @@ def box_speed_bound(scene: Scene, P: np.ndarray, t_end: float, ranges: dict | No
 
     From the motion's formulas on intervals of time (:mod:`jackbox.intervals`):
     ``|(x', y')| + |theta'| r_box`` on each piece, r_box the box's outer
-    half-diagonal; infinite where a formula may be undefined or unbounded
-    (every gap is then looked at every step). Rounded up onto a coarse grid
+    half-diagonal; for all t >= 0 where that is finite, so that the tolerance
+    row does not depend on t_end (the engine's rule), else over [0, t_end]
+    (a box accelerating for ever); infinite where a formula may be undefined
+    or unbounded there (every gap is then looked at every step). Rounded up onto a coarse grid
     (a last-bit difference of the inputs gives the same bound). Checked
     against the motion sampled finely in tests/test_intervals.py.
     """
@@ -167,12 +169,20 @@ def box_speed_bound(scene: Scene, P: np.ndarray, t_end: float, ranges: dict | No
     values = dict(zip(scene.param_names, P.T)) | {name: (float(lo), float(hi)) for name, (lo, hi) in
                                                   (ranges or {}).items()}
     constants = set(BASE_SYMBOLS) | set(scene.user_params) | {"t"}
-    x, y, theta = (rate_bounds(parse_formula(f, constants), t_end, values) for f in scene.motion)
+    formulas = [parse_formula(f, constants) for f in scene.motion]
     high = {name: np.asarray(v[1] if isinstance(v, tuple) else v, float) for name, v in values.items()}
     r_box = math.sqrt(2.0) * (high["L"] + high["w_box"])
-    with np.errstate(over="ignore", invalid="ignore"):
-        speed = np.hypot(x, y) + theta * r_box[:, None]
-    return round_up(np.where(np.isnan(speed), np.inf, speed).max(axis=1))
+
+    def bound(horizon):
+        x, y, theta = (rate_bounds(f, horizon, values) for f in formulas)
+        with np.errstate(over="ignore", invalid="ignore"):
+            speed = np.hypot(x, y) + theta * r_box[:, None]
+        return round_up(np.where(np.isnan(speed), np.inf, speed).max(axis=1))
+
+    # for all time where that is finite (a periodic or bounded motion), so that the bound, and with it which
+    # loop takes a held step near a wall, does not depend on t_end; else up to t_end
+    forever = bound(math.inf)
+    return np.where(np.isfinite(forever), forever, bound(t_end)) if not np.all(np.isfinite(forever)) else forever
 
 
 def jack_radius_rule(scene: Scene) -> tuple[float, int]:

@@ -296,9 +296,13 @@ def rate_bounds(formula: Expr, t_end: float, values: dict, pieces: int = PIECES)
 
     values: each name the formula uses besides t, a float or an (m,) array,
     or a tuple (lo, hi) of them: every value in that range (a study's sweep).
+    t_end may be infinite: a bound for all time (finite where the formula's
+    rate is bounded, a periodic motion say).
     """
     m = max([np.size(v) for v in values.values() if not isinstance(v, tuple)] + [1])
-    edges = np.linspace(0.0, float(t_end), pieces + 1)
+    # (t_end = inf: every t >= 0, in pieces of which the last reaches infinity)
+    edges = np.append(np.linspace(0.0, 1.0, pieces), _INF) if t_end == _INF else np.linspace(0.0, float(t_end),
+                                                                                               pieces + 1)
     shape = (m, pieces)
     ones = np.ones(shape)
     env = {"t": Interval(edges[:-1] * ones, edges[1:] * ones, ones, ones)}
