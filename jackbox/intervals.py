@@ -169,8 +169,10 @@ def _call(name: str, args: list[Interval]) -> Interval:
         yy = _mul(y.lo, y.hi, y.lo, y.hi)
         rlo, rhi = _recip(np.maximum(xx[0], 0.0) + np.maximum(yy[0], 0.0), xx[1] + yy[1])
         dlo, dhi = _mul(l1 - h2, h1 - l2, rlo, rhi)
+        # its cut: where x <= 0 and y crosses 0 the value jumps by 2 pi (a box that jumps: no speed bounds it)
+        cut = (x.lo <= 0.0) & (y.lo <= 0.0) & (y.hi >= 0.0)
         full = np.full_like(dlo, math.pi)
-        return Interval(-full, full, dlo, dhi)
+        return Interval(-full, full, np.where(cut, -_INF, dlo), np.where(cut, _INF, dhi))
     if name in ("exp", "sinh", "tanh"):
         f = {"exp": np.exp, "sinh": np.sinh, "tanh": np.tanh}[name]
         vlo, vhi = _monotone(f, lo, hi)

@@ -110,6 +110,7 @@ def test_a_simple_formulas_bound_is_tight(text, t_end, exact):
     ("sqrt(t)", 1.0),             # its rate grows without bound at 0
     ("asin(t)", 2.0),             # undefined past 1
     ("t**t", 1.0),                # exp(t log t): log 0
+    ("atan2(sin(t), -0.5)", 9.0),   # across its cut: a jump of 2 pi, which no speed bounds
 ])
 def test_where_a_formula_may_be_undefined_or_unbounded_the_bound_is_infinite(text, t_end):
     tree = parse(text, {"t"})
