@@ -211,14 +211,14 @@ def run_chaos_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.n
     offset = rows["offset"]
     m = stop - start
     n_intervals = -(-spec.n_steps // spec.renorm_steps)
-    stretch, fin = np.zeros((m, n_intervals)), np.zeros((m, K.TWIN_FIN + 2 * n_dof))
+    stretch, fin = np.zeros((m, n_intervals)), np.zeros((m, K.TWIN_FIN + 12))
     kernel.run_twin_members(rows["q0"], rows["qd0"], np.ascontiguousarray(offset[:, :n_dof]),
                             np.ascontiguousarray(offset[:, n_dof:]), rows["params"], rows["tol"], spec.dt,
                             spec.n_steps, spec.renorm_steps, _chaos_scale(spec), stretch, fin,
                             lanes=spec.device == "cpu" and use_lanes(spec, kernel), device=spec.device)
     status = fin[:, 1].astype(np.int64)
-    fin_q = fin[:, K.TWIN_FIN:K.TWIN_FIN + n_dof].copy()
-    fin_qd = fin[:, K.TWIN_FIN + n_dof:].copy()
+    fin_q = fin[:, K.TWIN_FIN:K.TWIN_FIN + 6].copy()      # (six coordinates, a prescribed box's included)
+    fin_qd = fin[:, K.TWIN_FIN + 6:].copy()
     lost = status != K.DONE
     fin_q[lost], fin_qd[lost] = np.nan, np.nan
     # a pair whose reference ended inside a wall went through it unseen: its stretches measure that, not the

@@ -492,6 +492,17 @@ def test_a_chaos_reference_ends_where_the_ensemble_member_ends(lanes):
     assert same_bits(pairs.impacts, members.impacts)
 
 
+def test_a_chaos_reference_of_a_prescribed_box_ends_where_the_ensemble_member_ends(tmp_path):
+    # the box's coordinates from its motion, as the ensemble's (the first version wrote the integrated
+    # coordinates only, and the study's wall check failed on them with an IndexError)
+    scene = write_scene(tmp_path, PRESCRIBED)
+    study = dict(t_end=1.0, seed=2, perturb={"theta_jack": 1e-2})
+    pairs = E.chaos(scene, 6, renorm=0.1, **study)
+    members = E.ensemble(scene, 6, **study)
+    assert pairs.q.shape == (6, 6) and np.all(pairs.status == 0)
+    assert same_bits(pairs.q, members.q) and same_bits(pairs.qd, members.qd)
+
+
 def test_chaos_members_that_stop_early_have_no_ftle():
     # member 0 turns non-finite (T = 1e-310, see above): no FTLE (NaN, docs/scenes.md), no
     # stretch after it stopped, and the printed statistics (the summary that jackbox chaos

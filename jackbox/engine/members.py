@@ -253,8 +253,9 @@ def run_twins(model, exact, stages, q0, qd0, dq, dqd, p, tol, dt, n_steps, renor
     change nothing there (:func:`needs_update`).
     fin: [impulses of the reference, status, step reached, seconds either
     twin spent in the fallback, solver warnings of both], then from
-    :data:`TWIN_FIN` the reference's coordinates and rates where it ended (the
-    study checks them for a pair that went through a wall unseen).
+    :data:`TWIN_FIN` the reference's six coordinates and six rates where it
+    ended, as an ensemble member's (the study checks them for a pair that went
+    through a wall unseen).
     """
     follow_twins(model, exact, stages, q0.copy(), qd0.copy(), q0.copy(), qd0.copy(), dq, dqd, p, tol, dt, n_steps,
                  renorm_steps, scale, stretch, fin, new_modes(model), new_modes(model), new_log(LOG_SIZE),
@@ -299,9 +300,19 @@ def follow_twins(model, exact, stages, q, qd, qt, qdt, dq, dqd, p, tol, dt, n_st
     fin[2] = i
     fin[3] = fallback_time(tally, i * dt) + fallback_time(tally_t, i2 * dt)
     fin[4] = tally[TALLY_WARNINGS] + tally_t[TALLY_WARNINGS]
+    # the reference's state as an ensemble member's (six coordinates: a prescribed box's from its motion,
+    # gv's first row its scratch)
+    off = 0
+    if model.prescribed:
+        box = gv[0]
+        model.box_motion(0.0 + i * dt, p, box)
+        for d in range(3):
+            fin[TWIN_FIN + d] = box[d]
+            fin[TWIN_FIN + 6 + d] = box[3 + d]
+        off = 3
     for d in range(n):
-        fin[TWIN_FIN + d] = q[d]
-        fin[TWIN_FIN + n + d] = qd[d]
+        fin[TWIN_FIN + off + d] = q[d]
+        fin[TWIN_FIN + 6 + off + d] = qd[d]
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -772,10 +783,10 @@ def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, dt, n_steps, 
         fin[j, 2] = step[r]
         fin[j, 3] = fallback_time(tally, step[r] * dt) + fallback_time(tally_t, step_t[r] * dt)
         fin[j, 4] = tally[TALLY_WARNINGS] + tally_t[TALLY_WARNINGS]
-        take_lane(B.S, r, q, qd)
+        take_lane(B.S, r, q, qd)          # (a free box: lanes are for free boxes only)
         for d in range(n):
             fin[j, TWIN_FIN + d] = q[d]
-            fin[j, TWIN_FIN + n + d] = qd[d]
+            fin[j, TWIN_FIN + 6 + d] = qd[d]
 
 
 @njit(cache=True)

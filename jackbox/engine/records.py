@@ -29,7 +29,8 @@ MISSING = 5             #: a stage this step needs is not compiled (Stages.missi
 INSIDE = 6              #: (an ensemble's check of its members' final states, not the loops') a member ended
                         #: inside a wall: it went through one unseen (jackbox.ensemble.INSIDE_LIMIT)
 
-#: where a chaos pair's summary row (members.run_twins' fin) has the reference's final coordinates, then its rates
+#: where a chaos pair's summary row (members.run_twins' fin) has the reference's six final coordinates, then its
+#: six rates
 TWIN_FIN = 5
 
 # bits of Stages.missing: the stages compiled on first need only (a run with no held contact never releases one)
