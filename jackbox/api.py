@@ -139,10 +139,9 @@ def tolerances(run: Run, kernel) -> np.ndarray:
     speed bound, :func:`box_speed_bound`, too).
     """
     factor, n_points = jack_radius_rule(run.scene)
-    speed = 0.0
-    if run.scene.prescribed:
-        speed = run.box_speed if run.box_speed is not None else float(box_speed_bound(run.scene, run.p,
-                                                                                      run.n_steps * run.dt)[0])
+    speed = run.box_speed
+    if speed is None:
+        speed = float(box_speed_bound(run.scene, run.p, run.n_steps * run.dt)[0]) if run.scene.prescribed else 0.0
     return kernel.tolerances(run.p, factor, n_points, run.dt, speed)
 
 
@@ -182,7 +181,9 @@ def box_speed_bound(scene: Scene, P: np.ndarray, t_end: float, ranges: dict | No
     # for all time where that is finite (a periodic or bounded motion), so that the bound, and with it which
     # loop takes a held step near a wall, does not depend on t_end; else up to t_end
     forever = bound(math.inf)
-    return np.where(np.isfinite(forever), forever, bound(t_end)) if not np.all(np.isfinite(forever)) else forever
+    if np.all(np.isfinite(forever)):
+        return forever
+    return np.where(np.isfinite(forever), forever, bound(t_end))
 
 
 def jack_radius_rule(scene: Scene) -> tuple[float, int]:

@@ -182,14 +182,8 @@ def run_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray
     kernel.run_members(rows["q0"], rows["qd0"], rows["params"], rows["tol"], spec.dt, spec.n_steps,
                        np.asarray(spec.sample_steps, np.int64), samp_q, samp_qd, fin_q, fin_qd, fin,
                        lanes=spec.device == "cpu" and use_lanes(spec, kernel), device=spec.device)
-    # a member that stopped early has no final state: NaN, not its last sample
-    # (the step it reached is kept in `steps`)
-    lost = fin[:, 3] != K.DONE
-    fin_q[lost], fin_qd[lost], fin[lost, 0] = np.nan, np.nan, np.nan
-    # one that ended inside a wall went through it unseen (forces far beyond what a step resolves): said so
-    inside = ~lost & _inside(spec.scene, fin_q, rows["params"])
-    fin[inside, 3] = K.INSIDE
-    fin_q[inside], fin_qd[inside], fin[inside, 0] = np.nan, np.nan, np.nan
+    lost, inside = _unfinished(spec.scene, fin[:, 3], fin_q, fin_qd, rows["params"])
+    fin[lost | inside, 0] = np.nan
     return {"q": fin_q, "qd": fin_qd, "energy": fin[:, 0], "impacts": fin[:, 1].astype(np.int64),
             "first_impact_t": fin[:, 2], "status": fin[:, 3].astype(np.int64),
             "steps": fin[:, 4].astype(np.int64), "fallback": fin[:, 5], "warnings": fin[:, 6].astype(np.int64),
@@ -197,9 +191,20 @@ def run_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray
             "q0": rows["q0"], "qd0": rows["qd0"], "params": rows["params"]}
 
 
-def _inside(scene: Scene, Q: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """Which of the final states Q (n, 6), with parameter rows P, have a gap below -api.INSIDE_LIMIT L."""
-    return api.inside(scene, Q, dict(zip(scene.param_names, P.T)))
+def _unfinished(scene: Scene, status: np.ndarray, Q: np.ndarray, QD: np.ndarray, P: np.ndarray):
+    """Members that did not complete, said so in place; returns the masks (stopped early, ended inside a wall).
+
+    One that stopped early has no final state: NaN in Q and QD, not its last
+    sample (the step it reached is kept in ``steps``). One whose final state Q
+    (with parameter rows P) has a gap below -api.INSIDE_LIMIT L went through a
+    wall unseen (forces far beyond what a step resolves): status INSIDE, NaN.
+    """
+    lost = status != K.DONE
+    Q[lost], QD[lost] = np.nan, np.nan
+    inside = ~lost & api.inside(scene, Q, dict(zip(scene.param_names, P.T)))
+    status[inside] = K.INSIDE
+    Q[inside], QD[inside] = np.nan, np.nan
+    return lost, inside
 
 
 def run_chaos_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray]:
@@ -219,14 +224,11 @@ def run_chaos_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.n
     status = fin[:, 1].astype(np.int64)
     fin_q = fin[:, K.TWIN_FIN:K.TWIN_FIN + 6].copy()      # (six coordinates, a prescribed box's included)
     fin_qd = fin[:, K.TWIN_FIN + 6:].copy()
-    lost = status != K.DONE
-    fin_q[lost], fin_qd[lost] = np.nan, np.nan
     # a pair whose reference ended inside a wall went through it unseen: its stretches measure that, not the
     # dynamics (the twin is put back next to the reference at each renormalisation, so the reference's final
     # state speaks for both)
-    inside = ~lost & _inside(spec.scene, fin_q, rows["params"])
-    status[inside] = K.INSIDE
-    fin_q[inside], fin_qd[inside], stretch[inside] = np.nan, np.nan, np.nan
+    _, inside = _unfinished(spec.scene, status, fin_q, fin_qd, rows["params"])
+    stretch[inside] = np.nan
     return {"stretch": stretch, "impacts": fin[:, 0].astype(np.int64), "status": status,
             "steps": fin[:, 2].astype(np.int64), "fallback": fin[:, 3], "warnings": fin[:, 4].astype(np.int64),
             "q": fin_q, "qd": fin_qd,

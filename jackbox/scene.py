@@ -517,18 +517,10 @@ def contact_gaps(q: np.ndarray, points: np.ndarray, L: float, w: float, ground: 
 
     Used to refuse penetrating start states without compiling anything; the
     compiler derives the same rows symbolically and the tests compare them.
+    One state of :func:`contact_gaps_many`.
     """
-    xb, yb, tb, xj, yj, tj = q
-    cj, sj, cb, sb = math.cos(tj), math.sin(tj), math.cos(tb), math.sin(tb)
-    world = np.column_stack([xj + cj * points[:, 0] - sj * points[:, 1],
-                             yj + sj * points[:, 0] + cj * points[:, 1]])
-    dx, dy = world[:, 0] - xb, world[:, 1] - yb
-    local = np.column_stack([cb * dx + sb * dy, -sb * dx + cb * dy])
-    rows = [L - (local @ np.array(n)) for n in WALL_NORMALS]
-    if ground:
-        h = L + w
-        rows.append(np.array([yb + sb * sx * h + cb * sy * h for sx, sy in CORNER_SIGNS]))
-    return np.concatenate(rows)
+    return contact_gaps_many(np.asarray(q, float)[None], np.asarray(points, float)[None], np.array([L], float),
+                             np.array([w], float), ground)[0]
 
 
 def contact_gaps_many(Q: np.ndarray, points: np.ndarray, L: np.ndarray, w: np.ndarray, ground: bool) -> np.ndarray:

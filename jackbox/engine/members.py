@@ -877,7 +877,7 @@ def set_up_member(model, setup, i, q, qd, p, tol, offset):
     if setup.sweep_at.shape[0] == 0:        # the shared parameters: the shared row
         copy_to(tol, setup.tol)
     else:
-        # (a swept box motion's bound is the caller's: jackbox.ensemble._set_up writes each member's)
+        # (a swept box motion's bound: the study's over its range, jackbox.ensemble._study_box_speed)
         set_tolerances(model, p, setup.jack_factor, setup.n_points, setup.dt, setup.tol[T_BOXV], tol)
     if setup.d0 > 0.0:
         # a random direction in the scaled state space (normal draws, normalised), d0 long

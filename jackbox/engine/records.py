@@ -164,8 +164,8 @@ EventsType = types.NamedTuple([V1, I1, I1], Events)
 #: the parameter slots swept, the axis giving each its value, each axis's first and last value and the
 #: members along it (0: no sweep); the jack's bounding radius (jackbox.engine.tolerances.set_tolerances);
 #: the run's dt; the seed and the index of the first member set up; chaos twins' scaled distance (0:
-#: no twins) and the state's scale. (A sweep that moves a prescribed box: each member's speed bound is
-#: written by the caller, jackbox.ensemble._set_up.)
+#: no twins) and the state's scale. (A sweep that moves a prescribed box: tol holds the study's speed
+#: bound over the swept range, jackbox.ensemble._study_box_speed, valid for every member.)
 Setup = namedtuple("Setup", ["q", "qd", "p", "tol", "perturb_at", "perturb_by", "grid", "sweep_at", "sweep_axis",
                              "sweep_lo", "sweep_hi", "sweep_side", "jack_factor", "n_points",
                              "dt", "seed", "first", "d0", "scale", "derive"])
