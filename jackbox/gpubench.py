@@ -4,10 +4,12 @@
 
 In one run, on one machine (an NVIDIA GPU and the CPU cores beside it):
 
-* compile: each kernel the run needs (``members`` of every built-in scene,
-  ``twins`` of shaken) compiled in a new process with the CPU's parts already
-  cached (cold: NVVM and the driver's PTX assembler), then loaded in another
-  (cached); the cold ones run side by side, one process each;
+* compile: each kernel the run needs (``members``, ``alone`` and ``flying``
+  of every built-in scene, ``twins`` of shaken) compiled in a new process
+  (cold: NVVM and the PTX assembler; the CPU's parts are timed apart), then
+  loaded in another (cached); side by side, one process a kernel, while the
+  CPU's engine compiles in this one; with each kernel's registers and local
+  memory per thread;
 * agreement: every built-in scene, 1000 members (perturbed starts) for 1 s on
   the GPU and on the CPU: the largest difference of the final coordinates and
   rates, and whether every member has the same impulse count; the FTLEs of a
@@ -22,9 +24,11 @@ In one run, on one machine (an NVIDIA GPU and the CPU cores beside it):
   into warps of their own), their agreement with the CPU too;
 * divergence: drop e = 0.6 with every member the same (all threads of a warp
   take the same branches) against perturbed members (they settle at
-  different times), the same n.
+  different times), the same n, the perturbed ones in one go and in rounds
+  (one sample each: the slowest study of the run).
 
-Writes ``gpu.md`` and ``gpu.json`` beside ``throughput.md``.
+Writes ``gpu.md`` and ``gpu.json`` beside ``throughput.md`` (``gpu.json`` after
+each part too, so that a run cut short keeps what it measured).
 """
 
 from __future__ import annotations
@@ -53,8 +57,9 @@ SIZES = {
 }
 DROP_OVER = {"restitution": 0.6}
 PERTURB = {"theta_jack": 1e-6}
-#: kernels compiled cold, side by side: (scene, kind)
-KERNELS = (("shaken", "ensemble"), ("shaken", "chaos"), ("drop", "ensemble"), ("spring", "ensemble"))
+#: kernels compiled cold, side by side: (scene, kernel)
+KERNELS = tuple((scene, name) for scene in ("shaken", "drop", "spring") for name in ("members", "alone", "flying")) \
+    + (("shaken", "twins"),)
 
 _COMPILE = """
 import json, sys, time, warnings
@@ -68,7 +73,11 @@ kernels = kernel.gpu()
 t1 = time.perf_counter()
 cached = gpu.is_cached(kernels, sys.argv[2])
 result = gpu.prepare(kernels, sys.argv[2])
-print(json.dumps({"seconds": time.perf_counter() - t1, "before": t1 - t0, "cached_before": cached, "cache": result}))
+seconds = time.perf_counter() - t1
+kernel, real = getattr(kernels, sys.argv[2]), not gpu._simulated()
+print(json.dumps({"seconds": seconds, "before": t1 - t0, "cached_before": cached, "cache": result,
+                  "registers": kernel.get_regs_per_thread() if real else None,
+                  "local_bytes": kernel.get_local_mem_per_thread() if real else None}))
 """
 
 
@@ -85,13 +94,18 @@ def run(args) -> int:
     out = args.out if args.out is not None else bench.default_out(args.quick)
     repeat = max(1, args.repeat)
     t_start = time.perf_counter()
-    warm_cpu(size)
     result = {"jackbox": jackbox.__version__, "command": bench.command_line(), "machine": machine(),
               "repeat": repeat, "quick": bool(args.quick), "sizes": size}
-    result["compile"] = compile_times()
-    result["agreement"] = agreement(size)
-    result["throughput"] = throughput(size, repeat)
-    result["divergence"] = divergence(size, repeat)
+    out.mkdir(parents=True, exist_ok=True)
+
+    def part(key, value):
+        result[key] = value
+        write_atomic(out / "gpu.json", json.dumps(result, indent=2, default=float) + "\n")
+
+    part("compile", compile_times(lambda: warm_cpu(size)))
+    part("agreement", agreement(size))
+    part("throughput", throughput(size, repeat))
+    part("divergence", divergence(size))
     result["wall_seconds"] = time.perf_counter() - t_start
     result["targets"] = targets(result)
     agree = result["agreement"]
@@ -131,22 +145,34 @@ def warm_cpu(size: dict) -> None:
     _study("shaken", 32, 0.01, "cpu", chaos=True)
 
 
-def compile_times() -> dict:
-    """Each kernel compiled in a new process (side by side), then loaded from the cache in another."""
+def _compiles() -> list[dict]:
+    """Each kernel of KERNELS in a process of its own, side by side: what each printed."""
+    env = dict(os.environ, PYTHONWARNINGS="ignore")
+    procs = [subprocess.Popen([sys.executable, "-c", _COMPILE, scene, name], stdout=subprocess.PIPE, text=True,
+                              env=env) for scene, name in KERNELS]
+    return [json.loads(proc.communicate()[0].strip().splitlines()[-1]) for proc in procs]
+
+
+def compile_times(meanwhile=None) -> dict:
+    """Each kernel compiled in a new process (side by side), then loaded from the cache in another (side by
+    side too); ``meanwhile`` runs here while the cold ones compile."""
+    from concurrent.futures import ThreadPoolExecutor
+
     from . import bench
 
     bench._say(f"compiling {len(KERNELS)} GPU kernels cold, one process each, side by side")
-    env = dict(os.environ, PYTHONWARNINGS="ignore")
-    procs = [subprocess.Popen([sys.executable, "-c", _COMPILE, scene, kind], stdout=subprocess.PIPE, text=True,
-                              env=env) for scene, kind in KERNELS]
-    rows = []
-    for (scene, kind), proc in zip(KERNELS, procs):
-        cold = json.loads(proc.communicate()[0].strip().splitlines()[-1])
-        warm = json.loads(subprocess.run([sys.executable, "-c", _COMPILE, scene, kind], capture_output=True,
-                                         text=True, env=env, check=True).stdout.strip().splitlines()[-1])
-        rows.append({"scene": scene, "kind": kind, "cold_seconds": cold["seconds"], "cold_cache": cold["cache"],
-                     "cached_seconds": warm["seconds"], "cached_cache": warm["cache"],
-                     "cached_process_seconds": warm["seconds"] + warm["before"]})
+    with ThreadPoolExecutor(1) as pool:
+        cold = pool.submit(_compiles)
+        if meanwhile is not None:
+            meanwhile()
+        cold = cold.result()
+    bench._say("loading them from the cache, one process each")
+    warm = _compiles()
+    rows = [{"scene": scene, "kernel": name, "cold_seconds": c["seconds"], "cold_cache": c["cache"],
+             "cold_process_before": c["before"], "cached_seconds": w["seconds"], "cached_cache": w["cache"],
+             "cached_process_seconds": w["seconds"] + w["before"], "registers": w["registers"],
+             "local_bytes": w["local_bytes"]}
+            for (scene, name), c, w in zip(KERNELS, cold, warm)]
     return {"kernels": rows}
 
 
@@ -232,16 +258,20 @@ def throughput(size: dict, repeat: int) -> dict:
             "gpu_over_cpu": {scene: best(scene, "cuda") / best(scene, "cpu") for scene in ("shaken", "drop")}}
 
 
-def divergence(size: dict, repeat: int) -> dict:
-    """drop e = 0.6 with identical members (no divergence in a warp) against perturbed ones, the same n."""
+def divergence(size: dict) -> dict:
+    """drop e = 0.6 with identical members (no divergence in a warp) against perturbed ones, the same n; the
+    perturbed ones in one go and in rounds. One sample each."""
     from . import bench
 
     n, t = size["drop_n"], size["drop_t"]
-    bench._say(f"divergence: drop e = 0.6, {n} identical members on the GPU x {repeat}")
-    same = _rates("drop", n, t, "cuda", repeat, DROP_OVER, perturb={})
-    spread = _rates("drop", n, t, "cuda", repeat, DROP_OVER, perturb={"theta_jack": 0.3, "x_jack": 0.2})
-    return {"identical": same, "perturbed": spread,
-            "cost": same["member_steps_per_second"] / spread["member_steps_per_second"]}
+    spread = {"theta_jack": 0.3, "x_jack": 0.2}
+    bench._say(f"divergence: drop e = 0.6, {n} members on the GPU, identical, then perturbed in rounds and in one go")
+    same = _rates("drop", n, t, "cuda", 1, DROP_OVER, perturb={})
+    rounds = _rates("drop", n, t, "cuda", 1, DROP_OVER, perturb=spread, rounds=True)
+    one_go = _rates("drop", n, t, "cuda", 1, DROP_OVER, perturb=spread)
+    return {"identical": same, "perturbed": one_go, "perturbed_rounds": rounds,
+            "cost": same["member_steps_per_second"] / one_go["member_steps_per_second"],
+            "cost_rounds": same["member_steps_per_second"] / rounds["member_steps_per_second"]}
 
 
 def targets(result: dict) -> list[dict]:
@@ -292,7 +322,9 @@ def markdown(result: dict) -> str:
     d = result["divergence"]
     lines += ["## Divergence (drop e = 0.6, the same n)", "",
               f"Identical members {d['identical']['member_steps_per_second']:.3g} member-steps/s, perturbed members "
-              f"{d['perturbed']['member_steps_per_second']:.3g}: divergence costs {d['cost']:.2f}x.", ""]
+              f"{d['perturbed']['member_steps_per_second']:.3g} in one go, "
+              f"{d['perturbed_rounds']['member_steps_per_second']:.3g} in rounds: divergence costs "
+              f"{d['cost']:.2f}x in one go, {d['cost_rounds']:.2f}x in rounds.", ""]
     lines += ["## Agreement with the CPU", "",
               "| scene | members | s | largest state difference | same impulse counts | same status |",
               "|---|---|---|---|---|---|"]
@@ -302,10 +334,11 @@ def markdown(result: dict) -> str:
     c = result["agreement"]["chaos"]
     lines += ["", f"Chaos study of shaken ({c['n']} twin pairs, {c['t_end']:g} s): FTLEs differ by at most "
                   f"{c['max_ftle_difference']:.2g} (mean FTLE {c['ftle_mean']:.3g}).", ""]
-    lines += ["## Compile (new processes; the CPU's parts cached)", "",
-              "| kernel | cold | cached |", "|---|---|---|"]
+    lines += ["## Compile (one new process a kernel, side by side; the CPU's parts timed apart)", "",
+              "| kernel | cold | cached | registers | local memory |", "|---|---|---|---|---|"]
     for r in result["compile"]["kernels"]:
-        lines.append(f"| {r['scene']} {r['kind']} | {r['cold_seconds']:.1f} s | {r['cached_seconds']:.2f} s |")
+        lines.append(f"| {r['scene']} {r['kernel']} | {r['cold_seconds']:.1f} s | {r['cached_seconds']:.2f} s "
+                     f"| {r['registers']} | {(r['local_bytes'] or 0) / 1024:.1f} KiB |")
     lines += ["", "## Targets", "", "| what | target | measured | met |", "|---|---|---|---|"]
     for t in result["targets"]:
         lines.append(f"| {t['what']} | {t['target']} | {t['value']:.3g} | {'yes' if t['met'] else '**NO**'} |")

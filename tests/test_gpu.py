@@ -69,6 +69,31 @@ print(json.dumps(out))
 """
 
 
+SETTLE = """
+name = "settle"
+[box]
+inner_half_width = 1.0
+wall_thickness = 0.1
+mass = 10.0
+motion = "free"
+[jack]
+shape = "square"
+half_size = 0.25
+mass = 1.0
+[world]
+gravity = 9.81
+ground = true
+[impact]
+restitution = 0.0
+[initial]
+q = [0.0, 1.101, 0.0, 0.0, 0.46, 0.0]
+qd = [0.0, 0.0, 0.0, 0.3, 0.0, 2.0]
+[run]
+t_end = 0.15
+dt = 1e-3
+"""
+
+
 def _simulate(cases, rounds: bool) -> dict:
     env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1", PYTHONWARNINGS="ignore")
     proc = subprocess.run([sys.executable, "-c", SIMULATED, json.dumps(cases), json.dumps(rounds)],
@@ -87,15 +112,18 @@ def test_the_gpus_kernels_give_the_cpus_numbers_on_the_simulator(tmp_path, round
 
     hand = tmp_path / "hand.toml"
     hand.write_text(PRESCRIBED)
+    settle = tmp_path / "settle.toml"           # drop's box flat just above the ground, its jack just above the
+    settle.write_text(SETTLE)                   # floor, plastic: both come to rest within a few steps
     cases = [("shaken", None, {}, 3, 0.3),
-             ("drop", None, {"restitution": "0.6"}, 3, 0.6),       # impacts and held contacts
+             ("drop", None, {"restitution": "0.6"}, 3, 0.6),       # impacts
+             ("settle", str(settle), {}, 3, 0.15),                 # held contacts (in rounds: the held list)
              ("hand", str(hand), {}, 2, 0.3)]                      # a prescribed box: 3 integrated coordinates
     out = _simulate(cases, rounds)
     for name, *_ in cases:
         assert out[name]["where"] == "GPU (numba-cuda simulator)"
         differ = [key for key, equal in out[name].items() if equal is False]
         assert not differ, f"{name}: the GPU's {', '.join(differ)} differ from the CPU's"
-    assert out["drop"]["impulses"] > 0          # the contact path ran
+    assert out["drop"]["impulses"] > 0 and out["settle"]["impulses"] > 0          # the contact path ran
     assert out["chaos"] == {"stretch": True, "impacts": True, "q": True, "finite": True}
 
 
@@ -109,6 +137,47 @@ def test_a_gpu_thread_runs_the_engines_own_functions():
     clone = gpu.device(loop.exact_steps).py_func
     assert clone.__globals__["advance"] is gpu.device(loop.advance)        # its callees are device functions too
     assert gpu.device(loop.borrow).py_func is gpu.SUBSTITUTES[id(loop.borrow)]
+
+
+#: run in a process of its own, without the simulator: each kernel of a model typed and lowered for the CUDA
+#: target (what the simulator, which runs the kernels' Python, cannot check)
+LOWERED = r"""
+import json, sys
+from jackbox import loader
+from jackbox.engine import gpu
+from jackbox.scene import load_scene
+
+kernels = loader.kernel_for(load_scene(sys.argv[1])).gpu()
+out = {}
+for name in ("members", "alone", "flying", "twins"):
+    cres = gpu.compile_offline(kernels, name, output="llvm")
+    ir = cres.library.get_llvm_str()
+    out[name] = {"lowered": cres.signature.return_type.__class__.__name__, "allocates": "NRT_MemInfo" in ir}
+print(json.dumps(out))
+"""
+
+
+@needs_numba_cuda
+@pytest.mark.parametrize("name", ["shaken", "drop", "hand"])
+def test_every_kernel_compiles_for_the_cuda_target(tmp_path, name):
+    """The kernels the CUDA target compiles, not only the simulator's Python: every one types and lowers, for a
+    scene in a box, one with a ground and a prescribed box, and none allocates (scratch of fixed size).
+
+    A GPU's compiler refuses what the simulator runs: a local array whose shape is a sum (``_N + 3``) is not
+    a constant to it, and every kernel failed so with the simulator's tests passing.
+    """
+    from .conftest import PRESCRIBED
+
+    path = name
+    if name == "hand":
+        path = tmp_path / "hand.toml"
+        path.write_text(PRESCRIBED)
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_ENABLE_CUDASIM"} | {"PYTHONWARNINGS": "ignore"}
+    proc = subprocess.run([sys.executable, "-c", LOWERED, str(path)], capture_output=True, text=True, env=env,
+                          timeout=1200)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert out == {k: {"lowered": "NoneType", "allocates": False} for k in ("members", "alone", "flying", "twins")}
 
 
 def test_device_cuda_without_numba_cuda_says_what_to_install(monkeypatch):
@@ -160,11 +229,14 @@ def _gpu_here() -> bool:
 
 
 @pytest.mark.skipif(not _gpu_here(), reason="no CUDA GPU here (the simulator test checks the GPU's code path)")
+@pytest.mark.parametrize("rounds", [False, True], ids=["one-go", "rounds"])
 @pytest.mark.parametrize("name, over", [("shaken", {}), ("drop", {"restitution": "0.6"}), ("spring", {})])
-def test_a_real_gpu_gives_the_cpus_numbers(name, over):
+def test_a_real_gpu_gives_the_cpus_numbers(name, over, rounds, monkeypatch):
+    from jackbox.engine import gpu
     from jackbox.ensemble import ensemble
     from jackbox.scene import load_scene
 
+    monkeypatch.setattr(gpu, "ROUNDS", rounds)
     scene = load_scene(name, over)
     kw = dict(perturb={"theta_jack": 0.3}, t_end=1.0)
     a, b = ensemble(scene, 256, **kw), ensemble(scene, 256, device="cuda", **kw)

@@ -207,14 +207,16 @@ def lanes_none(t0, dt, i, i_stop, S, p, tol, live, quiet):
 
 
 #: steps a member flies in one round (a round ends with the launch that takes the others through the
-#: exact loop: they wait no longer than this); steps a member near contact takes through the exact loop
-#: before it flies again (an approach, its impacts and the departure)
+#: exact loop: they wait no longer than this), and takes in the exact loop while held; steps a member near
+#: contact takes through the exact loop before it flies again (an approach, its impacts and the departure).
+#: Kernel arguments, read at each launch (benchmarks/gpu_probe.py tries others)
 CHUNK, ALONE = 256, 16
 #: columns of a member's row of integers: step reached, status, next sample
 AT_STEP, AT_STATUS, AT_SAMPLE = 0, 1, 2
 #: what member_fly says of a member: finished (or stopped), flown (quiet to the round's end or its sample),
-#: in want of the exact loop
-FINISHED, FLOWN, NEEDS_CARE = 0, 1, 2
+#: in want of the exact loop near contact, or held in a contact (the two take it in warps of their own: a
+#: held member's turn is CHUNK steps, a free one's ALONE)
+FINISHED, FLOWN, NEEDS_CARE, HELD = 0, 1, 2, 3
 
 
 def next_stop(state, sample_steps, n_steps):
@@ -256,16 +258,16 @@ def member_start(model, exact, stages, q, qd, rest, p, tol, tally, state, dt, n_
 
 
 def member_fly(model, q, qd, rest, p, tol, tally, state, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin,
-               qb, qdb, out, box):
+               qb, qdb, out, box, chunk):
     """One round of a member in free flight: the model's ``fly`` from a fresh clearance, as the exact loop
-    starts a call. Returns FINISHED, FLOWN, or NEEDS_CARE (a step that is not quiet, or a held contact)."""
+    starts a call. Returns FINISHED, FLOWN, NEEDS_CARE (a step that is not quiet) or HELD (a held contact)."""
     i = state[AT_STEP]
     if state[AT_STATUS] != DONE or i >= n_steps:
         return FINISHED
     if not is_free(rest, model.n_contact):
-        return NEEDS_CARE
+        return HELD
     stop = next_stop(state, sample_steps, n_steps)
-    end = min(stop, i + CHUNK)
+    end = min(stop, i + chunk)
     never = np.int64(-1)        # (the member's samples are its own: arrive)
     i, _, _ = model.fly(0.0, dt, i, end, q, qd, p, tol, model.clearance(i * dt, q, p, tol), qb, qdb, out.t, out.q,
                         out.qd, np.int64(0), never, np.int64(1), never)
@@ -277,11 +279,11 @@ def member_fly(model, q, qd, rest, p, tol, tally, state, dt, n_steps, sample_ste
 
 
 def member_alone(model, exact, stages, q, qd, rest, p, tol, tally, state, dt, n_steps, sample_steps, samp_q,
-                 samp_qd, fin_q, fin_qd, fin, log, out):
-    """A member through the exact loop: ALONE steps (free) or to the round's end (held, or in the fallback)."""
+                 samp_qd, fin_q, fin_qd, fin, log, out, chunk, turn):
+    """A member through the exact loop: ``turn`` steps (free) or ``chunk`` (held, or in the fallback)."""
     i = state[AT_STEP]
     stop = next_stop(state, sample_steps, n_steps)
-    end = min(stop, i + (ALONE if is_free(rest, model.n_contact) else CHUNK))
+    end = min(stop, i + (turn if is_free(rest, model.n_contact) else chunk))
     i, _, status, log = run_segment(model, exact, stages, q, qd, rest, p, tol, dt, i, end, out, np.int64(1), log, tally)
     state[AT_STEP], state[AT_STATUS] = i, status
     if status == DONE and i == stop:
@@ -319,7 +321,7 @@ def _model():
 
 @_cuda.jit(device=True, inline="always")
 def _stages():
-    ws = _Scratch(_cuda.local.array((9, _N), _f8), _cuda.local.array((_C, _N + {ROW_EXTRA}), _f8),
+    ws = _Scratch(_cuda.local.array((9, _N), _f8), _cuda.local.array((_C, {ROW}), _f8),
                   _cuda.local.array(({SC}, _C), _f8), _cuda.local.array(({SN}, _N), _f8),
                   _cuda.local.array(({SK}, _C), _i8), _cuda.local.array(_NR, _i8),
                   _cuda.local.array((_C, _C), _f8), _cuda.local.array((_C, _C), _f8),
@@ -366,20 +368,22 @@ def members(Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, 
 
 @_cuda.jit(cache=True)
 def alone(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, LIST,
-          n_listed):
-    """Members through the exact loop: every member's start (n_listed < 0), else the n_listed in LIST."""
+          first, n_listed, chunk, turn):
+    """Members through the exact loop: every member's start (n_listed < 0), else the n_listed in LIST from
+    ``first`` on (:func:`member_alone`: chunk and turn, its steps held and free)."""
     k = _cuda.grid(1)
     if k >= (Q.shape[0] if n_listed < 0 else n_listed):
         return
-    j = k if n_listed < 0 else LIST[k]
+    j = k if n_listed < 0 else LIST[first + k]
     q, qd, p, tol = _rows(Q, QD, P, TOL, j)
     rest, tally = _copy(_cuda.local.array(_NR, _i8), REST[j]), _copy(_cuda.local.array({TALLY}, _f8), TALLY[j])
+    model, stages, log, samples = _model(), _stages(), _log(), _samples()      # one scratch for either branch
     if n_listed < 0:
-        _gpu_start(_model(), _exact, _stages(), q, qd, rest, p, tol, tally, STATE[j], dt, n_steps, sample_steps,
-                   samp_q[j], samp_qd[j], fin_q[j], fin_qd[j], fin[j], _log(), _samples())
+        _gpu_start(model, _exact, stages, q, qd, rest, p, tol, tally, STATE[j], dt, n_steps, sample_steps,
+                   samp_q[j], samp_qd[j], fin_q[j], fin_qd[j], fin[j], log, samples)
     else:
-        _gpu_alone(_model(), _exact, _stages(), q, qd, rest, p, tol, tally, STATE[j], dt, n_steps, sample_steps,
-                   samp_q[j], samp_qd[j], fin_q[j], fin_qd[j], fin[j], _log(), _samples())
+        _gpu_alone(model, _exact, stages, q, qd, rest, p, tol, tally, STATE[j], dt, n_steps, sample_steps,
+                   samp_q[j], samp_qd[j], fin_q[j], fin_qd[j], fin[j], log, samples, chunk, turn)
     _copy(Q[j], q)
     _copy(QD[j], qd)
     _copy(REST[j], rest)
@@ -388,22 +392,25 @@ def alone(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, 
 
 @_cuda.jit(cache=True)
 def flying(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, LIST,
-        COUNT):
-    """A round of free flight for every member; those that need the exact loop are listed (LIST, COUNT[0]),
-    those still running counted (COUNT[1])."""
+           COUNT, chunk):
+    """A round of free flight for every member; those that need the exact loop are listed, the free ones
+    from LIST's start (COUNT[0] of them), the held ones from its end (COUNT[2]); those still running are
+    counted (COUNT[1])."""
     j = _cuda.grid(1)
     if j >= Q.shape[0]:
         return
     q, qd, p, tol = _rows(Q, QD, P, TOL, j)
     how = _gpu_fly(_model(), q, qd, REST[j], p, tol, TALLY[j], STATE[j], dt, n_steps, sample_steps, samp_q[j], samp_qd[j],
                    fin_q[j], fin_qd[j], fin[j], _cuda.local.array(_N, _f8), _cuda.local.array(_N, _f8), _samples(),
-                   _cuda.local.array(6, _f8))
+                   _cuda.local.array(6, _f8), chunk)
     if how != {FINISHED}:
         _copy(Q[j], q)
         _copy(QD[j], qd)
         _cuda.atomic.add(COUNT, 1, 1)
         if how == {NEEDS_CARE}:
             LIST[_cuda.atomic.add(COUNT, 0, 1)] = j
+        elif how == {HELD}:
+            LIST[Q.shape[0] - 1 - _cuda.atomic.add(COUNT, 2, 1)] = j
 
 
 @_cuda.jit(cache=True)
@@ -436,8 +443,9 @@ def kernel_text(model_text: str, flight_text: str, constants: dict) -> str:
     functions = ", ".join(name for name in SIGNATURES if name != "lanes")
     filled = KERNELS
     for key, value in {**constants, "FUNCTIONS": functions, "SC": SC, "SN": SN, "SK": SK, "MODE_SLOTS": MODE_SLOTS,
-                       "ROW_EXTRA": ROW_EXTRA,
-                       "LOG_SIZE": LOG_SIZE, "TALLY": TALLY, "FINISHED": FINISHED, "NEEDS_CARE": NEEDS_CARE}.items():
+                       "ROW": constants["N_DOF"] + ROW_EXTRA,
+                       "LOG_SIZE": LOG_SIZE, "TALLY": TALLY, "FINISHED": FINISHED, "NEEDS_CARE": NEEDS_CARE,
+                       "HELD": HELD}.items():
         filled = filled.replace("{" + key + "}", str(value))
     return model_text + "\n\n" + flight_text + filled
 
@@ -489,7 +497,8 @@ def _signatures():
     V1, V2, V3 = (types.Array(f8, d, "C") for d in (1, 2, 3))
     I1, I2 = types.Array(i8, 1, "C"), types.Array(i8, 2, "C")
     rounds = (V2, V2, V2, V2, I2, V2, I2, f8, i8, I1, V3, V3, V2, V2, V2, I1)
-    return {"members": (V2, V2, V2, V2, f8, i8, I1, V3, V3, V2, V2, V2), "alone": rounds + (i8,), "flying": rounds + (I1,), "twins": (V2, V2, V2, V2, V2, V2, f8, i8, i8, V1, V2, V2)}
+    return {"members": (V2, V2, V2, V2, f8, i8, I1, V3, V3, V2, V2, V2), "alone": rounds + (i8, i8, i8, i8),
+            "flying": rounds + (I1, i8), "twins": (V2, V2, V2, V2, V2, V2, f8, i8, i8, V1, V2, V2)}
 
 
 #: how an ensemble runs: False, each member from start to end in one thread (kernel ``members``); True,
@@ -500,8 +509,14 @@ def _signatures():
 ROUNDS = False
 
 
+#: the kernels of a kernel file
+KERNEL_NAMES = ("members", "alone", "flying", "twins")
+
+
 def kind_kernels(kind: str, rounds: bool | None = None) -> tuple[str, ...]:
-    """The kernels a study of this kind runs."""
+    """The kernels a study of this kind runs ("ensemble" or "chaos"; a kernel's name: that kernel)."""
+    if kind in KERNEL_NAMES:
+        return (kind,)
     if kind == "chaos":
         return ("twins",)
     return ("alone", "flying") if (ROUNDS if rounds is None else rounds) else ("members",)
@@ -527,6 +542,29 @@ def prepare(kernels, kind: str, rounds: bool | None = None) -> str:
     for name in names:
         getattr(kernels, name).compile(_signatures()[name])
     return "hit" if hit else "miss"
+
+
+def compile_offline(kernels, name: str, cc=(9, 0), output: str = "ptx"):
+    """A kernel compiled for compute capability ``cc`` with no GPU at hand: "llvm" (typed and lowered, which
+    needs no CUDA toolkit: what tests/test_gpu.py checks on every machine) or "ptx" (NVVM's output, which
+    needs its library: ``jackbox[cuda]``). Returns the compile result, or the PTX text.
+
+    The simulator runs the kernels' Python, so it cannot see a kernel the CUDA target would refuse (a local
+    array whose shape is not a constant, say); this can. numba-cuda asks the current device for its compute
+    capability when it compiles a device function: here the answer is ``cc``, for the call's duration.
+    """
+    from numba.cuda import compiler, dispatcher
+    from types import SimpleNamespace
+
+    asked = dispatcher.get_current_device
+    dispatcher.get_current_device = lambda: SimpleNamespace(compute_capability=tuple(cc))
+    try:
+        fn, sig = getattr(kernels, name).py_func, _signatures()[name]
+        if output == "llvm":
+            return compiler.compile_cuda(fn, None, sig, cc=tuple(cc))
+        return compiler.compile_ptx(fn, sig, cc=tuple(cc))[0]
+    finally:
+        dispatcher.get_current_device = asked
 
 
 def device_name() -> str:
@@ -556,8 +594,9 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
     In rounds, so that a member near contact does not hold up the 31 others
     of its warp: every member flies while it is quiet (kernel ``fly``, at most
     CHUNK steps), then the members that need the exact loop take it, listed
-    and packed into warps of their own (kernel ``alone``, ALONE steps, or to
-    the round's end for a held contact). A member's numbers are those of one
+    and packed into warps of their own (kernel ``alone``): those near contact
+    for ALONE steps, then those held in a contact for CHUNK steps, each list in
+    a launch of its own so that a warp's members take turns of one length. A member's numbers are those of one
     call of the exact loop from its start (:func:`member_fly` starts ``fly``
     as the exact loop starts a call); the rounds end when every member has.
     """
@@ -573,20 +612,22 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
     steps = cuda.to_device(np.ascontiguousarray(sample_steps, np.int64), stream=stream)
     outs = [cuda.to_device(a, stream=stream) for a in (samp_q, samp_qd, fin_q, fin_qd, fin)]
     LIST = cuda.to_device(np.zeros(n, np.int64), stream=stream)
-    count = np.zeros(2, np.int64)
+    count, zero = np.zeros(3, np.int64), np.zeros(3, np.int64)
     COUNT = cuda.to_device(count, stream=stream)
     args = (*dev, REST, TALLY_, STATE, float(dt), int(n_steps), steps, *outs, LIST)
     grid = (n + BLOCK - 1) // BLOCK
-    kernels.alone[grid, BLOCK, stream](*args, -1)
+    kernels.alone[grid, BLOCK, stream](*args, 0, -1, CHUNK, ALONE)
     while True:
-        COUNT.copy_to_device(np.zeros(2, np.int64), stream=stream)
-        kernels.flying[grid, BLOCK, stream](*args, COUNT)
+        COUNT.copy_to_device(zero, stream=stream)
+        kernels.flying[grid, BLOCK, stream](*args, COUNT, CHUNK)
         COUNT.copy_to_host(count, stream=stream)
         stream.synchronize()
         if count[1] == 0:
             break
-        if count[0] > 0:
-            kernels.alone[(int(count[0]) + BLOCK - 1) // BLOCK, BLOCK, stream](*args, int(count[0]))
+        free, held = int(count[0]), int(count[2])
+        for first, listed in ((0, free), (n - held, held)):
+            if listed > 0:
+                kernels.alone[(listed + BLOCK - 1) // BLOCK, BLOCK, stream](*args, first, listed, CHUNK, ALONE)
     for host, out in zip((samp_q, samp_qd, fin_q, fin_qd, fin), outs):
         out.copy_to_host(host, stream=stream)
     stream.synchronize()
