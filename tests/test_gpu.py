@@ -180,6 +180,20 @@ def test_every_kernel_compiles_for_the_cuda_target(tmp_path, name):
     assert out == {k: {"lowered": "NoneType", "allocates": False} for k in ("members", "alone", "flying", "twins")}
 
 
+def test_numpy_without_row_stack_gets_the_alias_numba_cuda_registers(monkeypatch):
+    """NumPy 2.5 removed ``row_stack``; numba-cuda 0.30 registers it when it first compiles or loads a kernel,
+    and every kernel failed to load on a GPU machine with NumPy 2.5.2. jackbox puts the alias back before
+    numba-cuda is used, and leaves a NumPy that has it alone."""
+    from jackbox.engine import gpu
+
+    own = getattr(np, "row_stack", None)
+    gpu._cuda()
+    assert getattr(np, "row_stack", None) is own
+    monkeypatch.delattr(np, "row_stack", raising=False)
+    gpu._cuda()
+    assert np.row_stack is np.vstack
+
+
 def test_device_cuda_without_numba_cuda_says_what_to_install(monkeypatch):
     from jackbox import ensemble as ens
     from jackbox.engine import gpu

@@ -91,8 +91,17 @@ _shadows: dict = {}
 
 
 def _cuda():
+    _numpy_for_numba_cuda()
     from numba import cuda
     return cuda
+
+
+def _numpy_for_numba_cuda() -> None:
+    """NumPy 2.5 removed ``np.row_stack`` (an alias of ``np.vstack``), which numba-cuda 0.30 still registers
+    when it first compiles or loads a kernel: every launch failed there with an AttributeError deep in
+    numba-cuda (seen on a GPU machine with NumPy 2.5.2). The alias is put back where it is missing."""
+    if not hasattr(np, "row_stack"):
+        np.row_stack = np.vstack
 
 
 #: the functions kept out of line in the GPU's code, as the CPU engine keeps them (its function values,
@@ -475,6 +484,7 @@ def load_kernels(model_text: str, flight_text: str, module):
     model_text: the generated model's text with the loader's stubs; module: the model as a module (its sizes).
     """
     from ..fileio import write_atomic
+    _numpy_for_numba_cuda()
     text = kernel_text(model_text, flight_text, kernel_constants(module))
     path = kernel_path(text)
     if path in _kernels:
@@ -503,10 +513,10 @@ def _signatures():
 
 #: how an ensemble runs: False, each member from start to end in one thread (kernel ``members``); True,
 #: in rounds (kernels ``flying`` and ``alone``, :func:`run_rounds`), so that members near contact do not
-#: hold up the others of their warp. Measured on an H100 (benchmarks/results/gpu.md) only without rounds
-#: so far: divergence cost shaken 9x there; the rounds give the same numbers (tests/test_gpu.py) and wait
-#: for a session with a GPU to be measured (jackbox bench --device cuda measures both)
-ROUNDS = False
+#: hold up the others of their warp. On an H200 (benchmarks/results/gpu.md) rounds ran shaken (1e6 members
+#: x 10 s) at 1.42e9 member-steps/s against 9.9e8 in one go, drop e = 0.6 (1e5 x 3 s) at 4.4e7 against
+#: 1.76e7, with the same numbers (the same impulse counts; states within 1e-12 of the CPU's either way)
+ROUNDS = True
 
 
 #: the kernels of a kernel file
@@ -553,8 +563,10 @@ def compile_offline(kernels, name: str, cc=(9, 0), output: str = "ptx"):
     array whose shape is not a constant, say); this can. numba-cuda asks the current device for its compute
     capability when it compiles a device function: here the answer is ``cc``, for the call's duration.
     """
-    from numba.cuda import compiler, dispatcher
     from types import SimpleNamespace
+
+    _numpy_for_numba_cuda()
+    from numba.cuda import compiler, dispatcher
 
     asked = dispatcher.get_current_device
     dispatcher.get_current_device = lambda: SimpleNamespace(compute_capability=tuple(cc))
