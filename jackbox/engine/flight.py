@@ -68,15 +68,24 @@ def clearance_s(t, q, p, tol):
     return _bound(q[0], q[1], q[2], q[3], q[4], tol, HAS_GROUND)
 
 
-def clearance(t, q, p, tol):
-    """A lower bound on every gap at (t, q): the broad phase, or the smallest gap without it."""
-    if BROAD_PHASE:
-        return clearance_s(t, q, p, tol)
+def narrow_s(t, q, p):
+    """The smallest gap at (t, q): every gap row."""
     g = phi_s(t, q, p)
     c = g[0]
     for k in range(1, N_CONTACT):
         c = min(c, g[k])
     return c
+
+
+def clearance(t, q, p, tol):
+    """A lower bound on every gap at (t, q): the smallest gap, every row.
+
+    Called once per call of :func:`fly` and after each step the exact loop
+    takes itself (where a gap row costs little beside the step): the broad
+    phase's disc would often stop ``fly`` before its first step near a wall
+    that no jack point is near.
+    """
+    return narrow_s(t, q, p)
 
 
 def fly(t0, dt, i, i_stop, q_io, qd_io, p, tol, clear, qn_out, vn_out, rec_t, rec_q, rec_qd, n_rec, next_rec,
@@ -120,11 +129,10 @@ def fly(t0, dt, i, i_stop, q_io, qd_io, p, tol, clear, qn_out, vn_out, rec_t, re
                 c = clear - band
                 if c < band:
                     c = clearance_s(t_next, qn, p, tol)
+                    if c < band:         # the jack's disc near a wall: its points may not be
+                        c = narrow_s(t_next, qn, p)
             else:                        # every gap row, every step
-                g = phi_s(t_next, qn, p)
-                c = g[0]
-                for k in range(1, N_CONTACT):
-                    c = min(c, g[k])
+                c = narrow_s(t_next, qn, p)
             if not c >= band:
                 quiet = False
                 break
@@ -171,4 +179,4 @@ def free_step(t, t_next, q_in, qd_in, dt, p, q_out, qd_out):
 
 
 #: the helpers a binding part inlines at Numba's level (``inline="always"``)
-INLINED = ("rk4_stages", "grid_step", "clearance_s", "record_s")
+INLINED = ("rk4_stages", "grid_step", "clearance_s", "narrow_s", "record_s")
