@@ -78,13 +78,13 @@ def narrow_s(t, q, p):
 
 
 def clearance(t, q, p, tol):
-    """A lower bound on every gap at (t, q): the smallest gap, every row.
+    """A lower bound on every gap at (t, q): the broad phase, or the smallest gap without it.
 
-    Called once per call of :func:`fly` and after each step the exact loop
-    takes itself (where a gap row costs little beside the step): the broad
-    phase's disc would often stop ``fly`` before its first step near a wall
-    that no jack point is near.
+    (Where the broad phase's bound is too low for a step, :func:`fly` looks at
+    the gap rows themselves before it stops.)
     """
+    if BROAD_PHASE:
+        return clearance_s(t, q, p, tol)
     return narrow_s(t, q, p)
 
 
@@ -123,8 +123,11 @@ def fly(t0, dt, i, i_stop, q_io, qd_io, p, tol, clear, qn_out, vn_out, rec_t, re
             sb = _speed_bound(vn, tol)
             band = dt * max(sa, sb) + margin      # step_reach(qd, vn, dt, tol) - T_EVENT / 2
             if not clear >= band:        # (also stops on a non-finite state)
-                quiet = False
-                break
+                if BROAD_PHASE:          # the bound the caller gave may be the broad phase's disc
+                    clear = narrow_s(t0 + i * dt, q, p)
+                if not clear >= band:
+                    quiet = False
+                    break
             if BROAD_PHASE:
                 c = clear - band
                 if c < band:

@@ -517,7 +517,12 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
             for k in range(C + MODE_SLOTS):
                 rest[k] = rest0[k]
             return i, n_rec, n_before, IMPACT_LOG_FULL
-        clear = model.clearance(t_next, q, p, tol)
+        if ga_ok:                 # the step's own gap rows at its end: the smallest gap, for nothing
+            clear = ga[0]
+            for k in range(1, C):
+                clear = min(clear, ga[k])
+        else:
+            clear = model.clearance(t_next, q, p, tol)
         i += 1
         for d in range(n):
             if not (math.isfinite(q[d]) and math.isfinite(qd[d])):
