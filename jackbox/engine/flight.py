@@ -80,8 +80,9 @@ def narrow_s(t, q, p):
 def clearance(t, q, p, tol):
     """A lower bound on every gap at (t, q): the broad phase, or the smallest gap without it.
 
-    (Where the broad phase's bound is too low for a step, :func:`fly` looks at
-    the gap rows themselves before it stops.)
+    (Within :func:`fly`, where the broad phase's bound is too low for a step,
+    the gap rows themselves; the exact loop, after a step it takes itself, the
+    smallest of that step's rows.)
     """
     if BROAD_PHASE:
         return clearance_s(t, q, p, tol)
@@ -123,11 +124,8 @@ def fly(t0, dt, i, i_stop, q_io, qd_io, p, tol, clear, qn_out, vn_out, rec_t, re
             sb = _speed_bound(vn, tol)
             band = dt * max(sa, sb) + margin      # step_reach(qd, vn, dt, tol) - T_EVENT / 2
             if not clear >= band:        # (also stops on a non-finite state)
-                if BROAD_PHASE:          # the bound the caller gave may be the broad phase's disc
-                    clear = narrow_s(t0 + i * dt, q, p)
-                if not clear >= band:
-                    quiet = False
-                    break
+                quiet = False
+                break
             if BROAD_PHASE:
                 c = clear - band
                 if c < band:

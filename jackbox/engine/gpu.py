@@ -267,9 +267,11 @@ def member_start(model, exact, stages, q, qd, rest, p, tol, tally, state, dt, n_
 
 
 def member_fly(model, q, qd, rest, p, tol, tally, state, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin,
-               qb, qdb, out, box, chunk):
-    """One round of a member in free flight: the model's ``fly`` from a fresh clearance, as the exact loop
-    starts a call. Returns FINISHED, FLOWN, NEEDS_CARE (a step that is not quiet) or HELD (a held contact)."""
+               qb, qdb, out, box, gaps, chunk):
+    """One round of a member in free flight: the model's ``fly`` from the smallest gap (``gaps``: scratch of
+    a row a contact), as the exact loop goes on after a step of its own, so that a member a turn has taken
+    away from a wall flies again at once. Returns FINISHED, FLOWN, NEEDS_CARE (a step that is not quiet)
+    or HELD (a held contact)."""
     i = state[AT_STEP]
     if state[AT_STATUS] != DONE or i >= n_steps:
         return FINISHED
@@ -278,8 +280,12 @@ def member_fly(model, q, qd, rest, p, tol, tally, state, dt, n_steps, sample_ste
     stop = next_stop(state, sample_steps, n_steps)
     end = min(stop, i + chunk)
     never = np.int64(-1)        # (the member's samples are its own: arrive)
-    i, _, _ = model.fly(0.0, dt, i, end, q, qd, p, tol, model.clearance(i * dt, q, p, tol), qb, qdb, out.t, out.q,
-                        out.qd, np.int64(0), never, np.int64(1), never)
+    model.phi(i * dt, q, p, gaps)
+    clear = gaps[0]
+    for k in range(1, model.n_contact):
+        clear = min(clear, gaps[k])
+    i, _, _ = model.fly(0.0, dt, i, end, q, qd, p, tol, clear, qb, qdb, out.t, out.q, out.qd, np.int64(0), never,
+                        np.int64(1), never)
     state[AT_STEP] = i
     if i == stop:
         arrive(model, i * dt, q, qd, p, state, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, out, box)
@@ -411,7 +417,7 @@ def flying(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q,
     q, qd, p, tol = _rows(Q, QD, P, TOL, j)
     how = _gpu_fly(_model(), q, qd, REST[j], p, tol, TALLY[j], STATE[j], dt, n_steps, sample_steps, samp_q[j], samp_qd[j],
                    fin_q[j], fin_qd[j], fin[j], _cuda.local.array(_N, _f8), _cuda.local.array(_N, _f8), _samples(),
-                   _cuda.local.array(6, _f8), chunk)
+                   _cuda.local.array(6, _f8), _cuda.local.array(_C, _f8), chunk)
     if how != {FINISHED}:
         _copy(Q[j], q)
         _copy(QD[j], qd)

@@ -449,7 +449,9 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
                     next_rec = (i // record_every + 1) * record_every
                     if i == i_end:
                         break
-                    clear = model.clearance(t0 + i * dt, q, p, tol)
+                    clear = ga[0]         # (hold leaves the gap rows of the state it reached in ga)
+                    for k in range(1, C):
+                        clear = min(clear, ga[k])
         if rest[C + MODE_AT] > 0 and stages.missing & NEED_FALLBACK:
             return i, n_rec, n_ev, MISSING
         t = t0 + i * dt
