@@ -172,18 +172,17 @@ def compile_times(meanwhile=None) -> dict:
     a second run of the benchmark on one machine measures what the first did.
     """
     import tempfile
-    from concurrent.futures import ThreadPoolExecutor
 
     from . import bench
 
     bench._say(f"compiling {len(KERNELS)} GPU kernels cold, one process each, side by side")
     base = dict(os.environ, PYTHONWARNINGS="ignore")
-    with tempfile.TemporaryDirectory(prefix="jackbox-cold-") as fresh, ThreadPoolExecutor(1) as pool:
+    with tempfile.TemporaryDirectory(prefix="jackbox-cold-") as fresh:
         envs = [dict(base, NUMBA_CACHE_DIR=fresh) if _cached_here(scene, name) else base for scene, name in KERNELS]
-        cold = pool.submit(lambda: [_printed(p) for p in [_compile(s, k, e) for (s, k), e in zip(KERNELS, envs)]])
-        if meanwhile is not None:
+        procs = [_compile(scene, name, env) for (scene, name), env in zip(KERNELS, envs)]
+        if meanwhile is not None:       # (each prints one line when it ends: nothing waits on a full pipe)
             meanwhile()
-        cold = cold.result()
+        cold = [_printed(proc) for proc in procs]
     bench._say("loading them from the cache, one process after another")
     warm = [_printed(_compile(scene, name, base)) for scene, name in KERNELS]
     rows = [{"scene": scene, "kernel": name, "cold_seconds": c["seconds"], "cold_cache": c["cache"],

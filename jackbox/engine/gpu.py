@@ -40,7 +40,7 @@ import numba
 import numpy as np
 
 from . import cache
-from .loop import exact_steps, record
+from .loop import exact_steps, lowest_free, record
 from .members import (LOG_SIZE, TALLY, TALLY_FIRST, TALLY_IMPULSES, TALLY_WARNINGS, copy_to, fallback_time, grown,
                       is_free, run_segment, start_member)
 from .records import DONE, MODE_SLOTS, ROW_EXTRA, SC, SK, SN, SIGNATURES, Stages, borrow, keep
@@ -281,11 +281,8 @@ def member_fly(model, q, qd, rest, p, tol, tally, state, dt, n_steps, sample_ste
     end = min(stop, i + chunk)
     never = np.int64(-1)        # (the member's samples are its own: arrive)
     model.phi(i * dt, q, p, gaps)
-    clear = gaps[0]
-    for k in range(1, model.n_contact):
-        clear = min(clear, gaps[k])
-    i, _, _ = model.fly(0.0, dt, i, end, q, qd, p, tol, clear, qb, qdb, out.t, out.q, out.qd, np.int64(0), never,
-                        np.int64(1), never)
+    i, _, _ = model.fly(0.0, dt, i, end, q, qd, p, tol, lowest_free(gaps, rest, model.n_contact), qb, qdb, out.t,
+                        out.q, out.qd, np.int64(0), never, np.int64(1), never)
     state[AT_STEP] = i
     if i == stop:
         arrive(model, i * dt, q, qd, p, state, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, out, box)

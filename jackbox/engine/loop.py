@@ -449,9 +449,6 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
                     next_rec = (i // record_every + 1) * record_every
                     if i == i_end:
                         break
-                    clear = ga[0]         # (hold leaves the gap rows of the state it reached in ga)
-                    for k in range(1, C):
-                        clear = min(clear, ga[k])
         if rest[C + MODE_AT] > 0 and stages.missing & NEED_FALLBACK:
             return i, n_rec, n_ev, MISSING
         t = t0 + i * dt
@@ -519,12 +516,9 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
             for k in range(C + MODE_SLOTS):
                 rest[k] = rest0[k]
             return i, n_rec, n_before, IMPACT_LOG_FULL
-        if ga_ok:                 # the step's own gap rows at its end: the smallest gap, for nothing
-            clear = ga[0]
-            for k in range(1, C):
-                clear = min(clear, ga[k])
-        else:
-            clear = model.clearance(t_next, q, p, tol)
+        # a bound on the gaps for the next step's free flight (read only with no contact held): the
+        # smallest of this step's own gap rows where ga holds them, for nothing
+        clear = lowest_free(ga, rest, C) if ga_ok else model.clearance(t_next, q, p, tol)
         i += 1
         for d in range(n):
             if not (math.isfinite(q[d]) and math.isfinite(qd[d])):
