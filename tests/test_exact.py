@@ -198,6 +198,32 @@ def test_corner_hit_bounces_off_both_walls_at_once(still):
     assert np.all(traj.qd[:, 5] == 0.0)
 
 
+def test_a_jack_sliding_on_the_floor_coasts_into_the_wall_at_the_analytic_time(still):
+    # a jack resting flat on the floor of the still box, pushed sideways at 0.5 m/s:
+    # frictionless, it slides at that speed (its held accelerations vanish, so the
+    # held loop coasts) until its right side meets the wall, 0.5 m away, bounces
+    # with e = 0.5 and slides back at 0.25 m/s; the floor holds it throughout
+    v = 0.5
+    y_rest = -L + A_JACK - HELD
+    scene = jackbox.load_scene(still, {"initial.q": [0, 0, 0, 0.0, y_rest, 0.0], "initial.qd": [0, 0, 0, v, 0.0, 0.0]})
+    traj = jackbox.simulate(scene, t_end=2.0)
+    t_hit = (L - A_JACK + HELD) / v           # the side at the event level, -HELD past the wall
+    assert len(traj.impact_t) == 2 and set(traj.impact_constraint) == {0, 3}, traj.impact_t   # right:0, right:3
+    assert np.abs(traj.impact_t - t_hit).max() < 1e-12, traj.impact_t - t_hit
+    before, after = traj.t < t_hit, traj.t > t_hit
+    x_hit = L - A_JACK + HELD
+    np.testing.assert_allclose(traj.q[before, 3], v * traj.t[before], rtol=0, atol=1e-14)
+    np.testing.assert_allclose(traj.q[after, 3], x_hit - 0.5 * v * (traj.t[after] - t_hit), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(traj.qd[after, 3], -0.5 * v, rtol=0, atol=1e-14)
+    assert np.abs(traj.q[:, 4] - y_rest).max() < 1e-15 and np.abs(traj.q[:, 5]).max() < 1e-15
+    assert np.abs(traj.qd[:, 4:]).max() < 1e-15
+    # the floor's two corners held from the start, never let go
+    assert list(traj.contact_changes["event"]) == ["rest", "rest"]
+    kinetic = 0.5 * 1.0 * np.array([v, 0.5 * v]) ** 2
+    np.testing.assert_allclose(traj.energy[before] - traj.energy[0], 0.0, atol=1e-14)
+    np.testing.assert_allclose(traj.energy[after] - traj.energy[0], kinetic[1] - kinetic[0], atol=1e-13)
+
+
 def test_inelastic_drop_settles_with_the_box_resting_on_the_ground():
     # drop with e = 0.6: the box rocks on its corners, the bounces accumulate
     # and it comes to rest flat on the ground (y_box = L + w exactly, no tilt),

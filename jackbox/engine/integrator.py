@@ -44,7 +44,7 @@ def rk4(model, t, q, qd, dt, p, q_out, qd_out, m, ws):
     if m > 0:
         model.inverse_mass(p, winv)
     rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, ws.work, ws.c[LS:LS + 4], ws.k[RIDX], ws.jac, winv,
-             ws.A, ws.lu, ws.c[RINV], ws.c[RHS], ws.c[LAM], ws.k[FLAGS, PASSES_AT], np.bool_(False))
+             ws.A, ws.lu, ws.c[RINV], ws.c[RHS], ws.c[LAM], ws.k[FLAGS, PASSES_AT], np.bool_(False), np.bool_(False))
 
 
 #: a step with held contacts turns its fastest angle by at most this much (rad) in one RK4 pass;
@@ -77,7 +77,7 @@ def held_passes(qd, dt, n):
 
 @njit(cache=True, no_cpython_wrapper=True)
 def rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam, passes,
-             factored):
+             factored, first):
     """:func:`rk4` on the arrays themselves (``winv`` filled where m > 0), like :func:`~.modes.held_accel`.
 
     w: (9, n) work rows; ls: (4, C) the held forces at each stage. With held
@@ -86,6 +86,9 @@ def rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A
     ``ls[1:]`` the smallest of each later pass's stages (the release screen
     looks at all of them). factored: the held rows' matrix at q is factored
     already (:func:`~.modes.settle_rows`; its first stage does not factor it again).
+    first: the first stage is taken already, its accelerations in ``w[5]``
+    and its forces in ``ls[0]`` (:func:`~.loop.hold` takes it at the step's
+    start, to see whether the step may coast).
     """
     k = passes if m > 0 and passes > 1 else 1
     h = dt / k
@@ -95,13 +98,14 @@ def rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A
         start_q = q if j == 0 else q_out
         start_qd = qd if j == 0 else qd_out
         rk4_pass(model, t + j * h, start_q, start_qd, h, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y,
-                 lam, j > 0, factored and j == 0)
+                 lam, j > 0, factored and j == 0, first and j == 0)
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def rk4_pass(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam, later, factored):
+def rk4_pass(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam, later, factored,
+             first):
     """One RK4 pass of :func:`rk4_rows` (later: not the step's first; its forces are folded into ``ls[1:]``;
-    factored: its first stage's matrix is factored)."""
+    factored: its first stage's matrix is factored; first: its first stage is taken, in ``a[0]`` and ``ls[0]``)."""
     n = model.n_dof
     qs = w[0]              # a stage's coordinates
     v = w[1:5]             # the stages' rates: the slopes of q
@@ -118,6 +122,8 @@ def rk4_pass(model, t, q, qd, dt, p, q_out, qd_out, m, w, ls, ridx, jac, winv, A
                 v[s, i] = qd[i] + h * a[s - 1, i]
         if m == 0:
             model.accel(t + h, qs, v[s], p, a[s])
+        elif first and s == 0:
+            continue
         else:
             held_accel(model, t + h, qs, v[s], p, m, a[s], ridx, jac, winv, A, L, rinv, y, lam, factored and s == 0)
             if later:

@@ -37,12 +37,12 @@ from numba import njit
 
 from .impact import resolve_impacts
 from .integrator import held_passes, rk4_rows
-from .modes import log_event, project_rest, rest_index, settle_rows
-from .records import (DONE, DRIFT, EXACT_AT, FALLBACK, FLAGS, GA, GB, HANDOFF, HANDOFF_AT, HANDOFF_EVENTS,
+from .modes import held_accel, log_event, on_level, project_rest, rest_index, settle_rows
+from .records import (AF, COAST, DONE, DRIFT, EXACT_AT, FALLBACK, FLAGS, GA, GB, HANDOFF, HANDOFF_AT, HANDOFF_EVENTS,
                       HANDOFF_MODES, HANDOFF_STUCK, HANDOFF_ZENO, IMPACT_LOG_FULL, LAM, LS, MAX_EVENTS,
                       MISSING, MODE_AT, MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT, NEED_FALLBACK, NEED_HOLD,
                       NEED_RELEASE, NONFINITE, PASSES_AT, Q0, QB, QD0, QDB, QDS, QS, RELEASE, RHS, RIDX, RINV, SET_AT, STAGES_AT,
-                      T_AREST, T_EVENT, T_SPEED, WARN_LCP, WARN_LOCATE, WARNING, WINV,
+                      LAMA, T_AREST, T_EVENT, T_SPEED, WARN_LCP, WARN_LOCATE, WARNING, WINV,
                       ZENO_PASSES, ZENO_SPAN, Events, ExactType, ModelType, NaiveType, Samples, StagesType, borrow,
                       from_table, keep, scratch)
 from .gaps import step_reach
@@ -265,7 +265,19 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
     where a bound on them (their smallest at the last look, lowered by each
     step's band and by what each projection moved) says one could be near:
     a contact resting on a floor with the others far from the walls takes
-    no gap row at all. The gaps at the state reached are left in
+    no gap row at all.
+
+    Where the held accelerations vanish (every stage of a step, then each
+    step's end: below COAST of T_AREST on every coordinate's lever, a
+    hundred times their round-off at rest), a step *coasts*: every
+    coordinate moves on at its rate, which is what RK4's stages give when
+    the accelerations they sample are zero, and the rows are read and
+    factored once, at its end, for its accelerations and forces there (the
+    release screen's) and the projection. A resting or sliding body (the
+    settled drop: the jack slides along the floor of a box that slides on
+    frictionless ground) takes a third of a held step's time; a step whose
+    end has an acceleration, or that stops the loop, is taken by RK4. The
+    gaps at the state reached are left in
     ``ws.c[GA]``. The samples on the way (steps that are multiples of
     record_every, and n_total) go into ``out`` from n_rec. Returns ``(i,
     trial, n_rec)``: trial 1 when the step it stopped before is already
@@ -282,16 +294,40 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
     deep = half + tol[T_EVENT]
     arest = tol[T_AREST]
     drift = DRIFT * tol[T_EVENT]      # a held gap off its level by less is round-off (modes.settle_rows)
+    still = COAST * arest             # held accelerations that move no gap by more are none (coasting)
     model.inverse_mass(p, winv)
     model.phi(t0 + i * dt, q, p, ga)
     fresh = True                 # whether ga holds the gaps at (t, q)
     factored = False             # whether L, rinv hold the factorization of the held rows at q
     low = lowest_free(ga, rest, C)
+    a_end, lam_end = ws.n[AF], ws.c[LAMA]
+    started = False              # whether w[5], ls[0] hold the accelerations and forces at (t, q, qd)
     while i < i_stop:
         ta = t0 + i * dt
         tb = t0 + (i + 1) * dt
-        rk4_rows(model, ta, q, qd, tb - ta, p, qb, qdb, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam,
-                 held_passes(qd, tb - ta, n), factored)
+        h = tb - ta
+        if not started:          # the step's first RK4 stage, taken here to see whether it may coast
+            held_accel(model, ta, q, qd, p, m, w[5], ridx, jac, winv, A, L, rinv, y, lam, factored)
+            for j in range(m):
+                ls[0, j] = lam[j]
+        coasted = False
+        if vanish(w[5], n, tol, still):
+            # no acceleration at the start: the step is uniform motion (RK4's stages all have the
+            # start's rates) if there is none at its end either, where its rows are read once; it
+            # coasts if they are on their level there (nothing to project, as in free flight)
+            for d in range(n):
+                qb[d] = q[d] + h * qd[d]
+                qdb[d] = qd[d]
+            held_accel(model, tb, qb, qdb, p, m, a_end, ridx, jac, winv, A, L, rinv, y, lam, np.bool_(False))
+            coasted = vanish(a_end, n, tol, still) and on_level(jac, ridx, m, n, half, drift, h)
+            if coasted:
+                for j in range(m):
+                    lam_end[j] = lam[j]
+                    for s in range(1, 4):
+                        ls[s, j] = lam[j]
+        if not coasted:
+            rk4_rows(model, ta, q, qd, h, p, qb, qdb, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam,
+                     held_passes(qd, h, n), factored, np.bool_(True))
         stop = False
         for j in range(m):
             floor = -arest / A[j, j]
@@ -301,7 +337,7 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
         for d in range(n):
             if not (math.isfinite(qb[d]) and math.isfinite(qdb[d])):
                 stop = True
-        band = step_reach(qd, qdb, tb - ta, tol)
+        band = step_reach(qd, qdb, h, tol)
         looked = False
         if stop or low - band + deep < band:
             # some free gap may come within the step's reach: first_crossing's own near test, on the gaps
@@ -313,15 +349,26 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
             for k in range(C):
                 if not rest[k] and min(ga[k], gb[k]) + deep < band:
                     stop = True
-        if stop:
-            return i, 1, n_rec
+        if stop:       # (a step that coasted is taken again, by RK4)
+            return i, 0 if coasted else 1, n_rec
         low = lowest_free(gb, rest, C) if looked else low - band    # (a bound on the free gaps at tb)
-        for d in range(n):
-            q[d] = qb[d]
-            qd[d] = qdb[d]
-        factored = settle_rows(model, tb, q, qd, p, m, half, drift, tb - ta, ridx, jac, winv, A, L, rinv, y, lam)
-        for d in range(n):       # what the projection moved any gap by, at most
-            low -= abs(q[d] - qb[d]) * tol[T_SPEED + d]
+        if coasted:    # on its level: the next step's first stage is its end's
+            for d in range(n):
+                q[d] = qb[d]
+                qd[d] = qdb[d]
+                w[5, d] = a_end[d]
+            for j in range(m):
+                ls[0, j] = lam_end[j]
+            started = True
+            factored = True
+        else:
+            for d in range(n):
+                q[d] = qb[d]
+                qd[d] = qdb[d]
+            factored = settle_rows(model, tb, q, qd, p, m, half, drift, h, ridx, jac, winv, A, L, rinv, y, lam)
+            for d in range(n):       # what the projection moved any gap by, at most
+                low -= abs(q[d] - qb[d]) * tol[T_SPEED + d]
+            started = False
         fresh = False
         i += 1
         if i % record_every == 0 or i == n_total:
@@ -330,6 +377,15 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
     if not fresh:
         model.phi(t0 + i * dt, q, p, ga)
     return i, 0, n_rec
+
+
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
+def vanish(a, n, tol, still):
+    """Whether the accelerations a move no gap by more than ``still`` (each times its coordinate's lever ``tol[T_SPEED + d]``)."""
+    for d in range(n):
+        if not abs(a[d]) * tol[T_SPEED + d] <= still:
+            return False
+    return True
 
 
 @njit(cache=True, no_cpython_wrapper=True)

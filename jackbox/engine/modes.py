@@ -212,12 +212,20 @@ def settle_rows(model, t, q, qd, p, m, level, drift, dt, ridx, jac, winv, A, L, 
     model.contact_rows(t, q, qd, p, ridx, m, jac)
     contact_matrix(jac, winv, ridx, m, A)
     factor_rows(A, m, L, rinv)
+    if not on_level(jac, ridx, m, n, level, drift, dt):
+        project_rows(model, t, q, qd, p, m, level, np.int64(1), ridx, jac, winv, A, L, rinv, y, x, np.bool_(True))
+        return False
+    project_rates(jac, winv, ridx, m, n, L, rinv, y, x, qd)
+    return True
+
+
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
+def on_level(jac, ridx, m, n, level, drift, dt):
+    """Whether every held row in jac (its gap and rate columns) is within ``drift`` of gap = -level, and no rate moves it by more in a step dt."""
     for i in range(m):
         k = ridx[i]
         if not (abs(jac[k, n + ROW_GAP] + level) <= drift and abs(jac[k, n + ROW_RATE]) * dt <= drift):
-            project_rows(model, t, q, qd, p, m, level, np.int64(1), ridx, jac, winv, A, L, rinv, y, x, np.bool_(True))
             return False
-    project_rates(jac, winv, ridx, m, n, L, rinv, y, x, qd)
     return True
 
 

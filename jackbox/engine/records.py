@@ -97,6 +97,11 @@ GAP_ROUNDOFF = 1e-3
 #: not projected after a quiet held step (jackbox.engine.modes.settle_rows): a quarter of GAP_ROUNDOFF,
 #: about one unit in the last place of the box's size
 DRIFT = 2.5e-4
+#: a held step coasts (moves every coordinate on at its rate: jackbox.engine.loop.hold) where the held
+#: accelerations, at both of its ends, move no gap by more than this fraction of T_AREST (itself 1e-12 L
+#: a step): 1e-18 L a step, a hundred times the round-off they carry at rest (1e-14 of T_AREST and
+#: less on the settled drop)
+COAST = 1e-6
 
 # ---------------------------------------------------------------------------
 # the model record
