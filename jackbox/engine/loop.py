@@ -267,17 +267,20 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
     a contact resting on a floor with the others far from the walls takes
     no gap row at all.
 
-    Where the held accelerations vanish (every stage of a step, then each
-    step's end: below COAST of T_AREST on every coordinate's lever, a
-    hundred times their round-off at rest), a step *coasts*: every
-    coordinate moves on at its rate, which is what RK4's stages give when
-    the accelerations they sample are zero, and the rows are read and
-    factored once, at its end, for its accelerations and forces there (the
-    release screen's) and the projection. A resting or sliding body (the
-    settled drop: the jack slides along the floor of a box that slides on
-    frictionless ground) takes a third of a held step's time; a step whose
-    end has an acceleration, or that stops the loop, is taken by RK4. The
-    gaps at the state reached are left in
+    Each step's first RK4 stage is taken here (the same call RK4 makes).
+    Where its accelerations vanish (below COAST of T_AREST on every
+    coordinate's lever, a hundred times their round-off at rest), the step
+    is tried as uniform motion, every coordinate moving on at its rate
+    (what RK4's stages give when the accelerations they sample are zero):
+    the rows are read and factored once, at its end, and it *coasts* if the
+    accelerations vanish there too and the held rows are on their level
+    (nothing to project); its end's accelerations and forces are the next
+    step's first stage. Otherwise RK4 takes the step from that first stage.
+    A resting or sliding body (the settled drop: the jack slides along the
+    floor of a box that slides on frictionless ground) takes a fifth of a
+    held step's time; a step that coasted and stops the loop is handed back
+    to be integrated again (trial 0). Which steps coast, and their numbers,
+    depend on the state alone. The gaps at the state reached are left in
     ``ws.c[GA]``. The samples on the way (steps that are multiples of
     record_every, and n_total) go into ``out`` from n_rec. Returns ``(i,
     trial, n_rec)``: trial 1 when the step it stopped before is already

@@ -99,8 +99,8 @@ GAP_ROUNDOFF = 1e-3
 DRIFT = 2.5e-4
 #: a held step coasts (moves every coordinate on at its rate: jackbox.engine.loop.hold) where the held
 #: accelerations, at both of its ends, move no gap by more than this fraction of T_AREST (itself 1e-12 L
-#: a step): 1e-18 L a step, a hundred times the round-off they carry at rest (1e-14 of T_AREST and
-#: less on the settled drop)
+#: a step): 1e-18 L a step, a hundred times the round-off they carry at rest (8.5e-9 of T_AREST at most
+#: on the settled drop, 8.5e-15 m/s^2)
 COAST = 1e-6
 
 # ---------------------------------------------------------------------------
