@@ -224,6 +224,25 @@ def test_a_jack_sliding_on_the_floor_coasts_into_the_wall_at_the_analytic_time(s
     np.testing.assert_allclose(traj.energy[after] - traj.energy[0], kinetic[1] - kinetic[0], atol=1e-13)
 
 
+def test_a_jack_resting_in_a_box_carried_at_constant_speed_coasts_with_it(tmp_path):
+    # the box is carried sideways at 0.3 m/s (its contact rows move with time) and the
+    # jack rests flat on its floor moving with it: nothing accelerates, so every held
+    # step coasts, and the jack must keep the box's pace exactly, on the held level
+    v = 0.3
+    text = STILL.replace('name = "still"', 'name = "carried"').replace('x = "0"', f'x = "{v}*t"')
+    scene = jackbox.load_scene(write_scene(tmp_path, text))
+    y_rest = -L + A_JACK - HELD
+    scene = jackbox.load_scene(scene, {"initial.q": [0, 0, 0, 0.0, y_rest, 0.0], "initial.qd": [0, 0, 0, v, 0, 0]})
+    traj = jackbox.simulate(scene, t_end=2.0)
+    assert len(traj.impact_t) == 0 and list(traj.contact_changes["event"]) == ["rest", "rest"]
+    np.testing.assert_allclose(traj.q[:, 3], v * traj.t, rtol=0, atol=1e-14)
+    assert np.abs(traj.q[:, 4] - y_rest).max() < 1e-15 and np.abs(traj.q[:, 5]).max() < 1e-15
+    np.testing.assert_allclose(traj.qd[:, 3], v, rtol=0, atol=1e-15)
+    assert np.abs(traj.qd[:, 4:]).max() < 1e-15
+    gaps = jack_gaps(traj, scene)
+    assert np.abs(gaps[:, [14, 15]] + HELD).max() < 1e-15        # bottom:2, bottom:3 on the held level
+
+
 def test_inelastic_drop_settles_with_the_box_resting_on_the_ground():
     # drop with e = 0.6: the box rocks on its corners, the bounces accumulate
     # and it comes to rest flat on the ground (y_box = L + w exactly, no tilt),
