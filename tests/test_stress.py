@@ -518,6 +518,31 @@ COARSE_TURNS = {
 }
 
 
+#: a draw of the weightless cross family (benchmarks/campaign.py --seed 2 --examples 500): a plastic cross
+#: thrown into a box spinning at 29 rad/s wedges in a corner and rocks between two pairs of resting
+#: contacts, the intervals shrinking to 0.3 us and staying there (a limit cycle, not Zeno)
+ROCKING_IN_A_CORNER = (0.0004999999999999999, {
+    "box.inner_half_width": 1.0, "box.wall_thickness": 0.1765577883520286, "box.mass": 1.5848931924611136,
+    "jack.mass": 18.98746563678875, "jack.half_size": 0.3716555298431266, "restitution": 0.0,
+    "initial.q": [-0.28779942463200203, 0.393282210547625, -2.543676933492173, -0.5257052134749824,
+                  -0.2893685414821312, -2.543676933492173],
+    "initial.qd": [-5.565266280407693e-104, -82.17504879786561, 81.02208448903599, -6.922203111887641e-262,
+                   -51.59810224046483, -1.1183293390875735e-05]})
+
+
+def test_a_body_rocking_between_two_resting_pairs_is_handed_to_the_fallback():
+    """Each impact of the rocking exchanged the held pair for the other (the set's size unchanged), which
+    the mode budget did not count: 24000 impacts in 10 ms, past the tests' event budget. A step that
+    exchanges the set more than SWAP_BUDGET times now goes to the fallback, which settles the wedge."""
+    dt, over = ROCKING_IN_A_CORNER
+    scene = jackbox.load_scene(base("cross"), {"gravity": 0.0, **over})
+    check_weightless_run(scene, dt)
+    traj = simulate(scene, t_end=1.0, dt=dt)
+    assert len(traj.impact_t) < 1000, len(traj.impact_t)
+    assert traj.meta["fallback_reasons"] and set(traj.meta["fallback_reasons"]) == {"too many contact mode changes"}
+    assert 0 < traj.meta["fallback_seconds"] < 0.05
+
+
 @pytest.mark.parametrize("case", list(COARSE_TURNS))
 def test_a_coarse_step_on_a_fast_turning_box_keeps_momentum_while_a_contact_is_held(case):
     """Held steps that would turn an angle by 0.7-5.7 rad are cut into RK4 passes (integrator.held_passes).

@@ -38,7 +38,7 @@ from numba import njit
 from .impact import resolve_impacts
 from .integrator import held_passes, rk4_rows
 from .modes import held_accel, log_event, on_level, project_rest, rest_index, settle_rows
-from .records import (AF, COAST, DONE, DRIFT, EXACT_AT, FALLBACK, FLAGS, GA, GB, HANDOFF, HANDOFF_AT, HANDOFF_EVENTS,
+from .records import (AF, COAST, DONE, SWAP_BUDGET, DRIFT, EXACT_AT, FALLBACK, FLAGS, GA, GB, HANDOFF, HANDOFF_AT, HANDOFF_EVENTS,
                       HANDOFF_MODES, HANDOFF_STUCK, HANDOFF_ZENO, IMPACT_LOG_FULL, LAM, LS, MAX_EVENTS,
                       MISSING, MODE_AT, MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT, NEED_FALLBACK, NEED_HOLD,
                       NEED_RELEASE, NONFINITE, PASSES_AT, Q0, QB, QD0, QDB, QDS, QS, RELEASE, RHS, RIDX, RINV, SET_AT, STAGES_AT,
@@ -163,6 +163,7 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
     watch_release = True     # off for the rest of the step once a release changed nothing
     stuck = 0
     changes = 0
+    swaps = 0
     t_mark = ta
     span = ZENO_SPAN * (tb - ta)
     qb, qdb = ws.n[QB], ws.n[QDB]
@@ -193,7 +194,7 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
         if not trial:
             model.phi(target, qb, p, gb)
         trial = False
-        if stuck >= 2 or changes > MODE_BUDGET:
+        if stuck >= 2 or changes > MODE_BUDGET or swaps > SWAP_BUDGET:
             ws.k[FLAGS, HANDOFF_AT] = HANDOFF_STUCK if stuck >= 2 else HANDOFF_MODES
             return n_ev, m, HANDOFF
         te = stages.crossing(model, stages.step, ta, target, q, qd, p, tol, rest, m, ws)
@@ -210,13 +211,15 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
             # An event at the same instant that changes nothing (a contact
             # touching at round-off level with no resolvable motion) twice
             # running: the step goes to the fallback.
-            n0, m0 = n_ev, m
+            n0, m0, held0 = n_ev, m, held_set(rest, C)
             ws.k[FLAGS, 1] = 0       # an impact before the release: nothing is being let go
             n_ev, m = stages.update(model, ta, q, qd, p, tol, rest, ws, log, n_ev)
             if n_ev != n0 or m != m0:
                 stuck = 0
             if m != m0:
                 changes += 1
+            elif held_set(rest, C) != held0:    # one held set for another of its size
+                swaps += 1
             model.phi(ta, q, p, ga)
             target = tb
             releasing = False
@@ -380,6 +383,16 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
     if not fresh:
         model.phi(t0 + i * dt, q, p, ga)
     return i, 0, n_rec
+
+
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
+def held_set(rest, C):
+    """The persistent contacts as a bit mask (contact k: bit k; C <= 63)."""
+    mask = 0
+    for k in range(C):
+        if rest[k]:
+            mask |= np.int64(1) << k
+    return mask
 
 
 @njit(cache=True, no_cpython_wrapper=True, inline="always")
