@@ -38,11 +38,11 @@ from numba import njit
 from .impact import resolve_impacts
 from .integrator import held_passes, rk4_rows
 from .modes import held_accel, log_event, on_level, project_rest, rest_index, settle_rows
-from .records import (AF, COAST, DONE, SWAP_BUDGET, DRIFT, EXACT_AT, FALLBACK, FLAGS, GA, GB, HANDOFF, HANDOFF_AT, HANDOFF_EVENTS,
+from .records import (AF, COAST, DONE, DRIFT, EXACT_AT, FALLBACK, FLAGS, GA, GB, HANDOFF, HANDOFF_AT, HANDOFF_EVENTS,
                       HANDOFF_MODES, HANDOFF_STUCK, HANDOFF_ZENO, IMPACT_LOG_FULL, LAM, LS, MAX_EVENTS,
                       MISSING, MODE_AT, MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT, NEED_FALLBACK, NEED_HOLD,
                       NEED_RELEASE, NONFINITE, PASSES_AT, Q0, QB, QD0, QDB, QDS, QS, RELEASE, RHS, RIDX, RINV, SET_AT, STAGES_AT,
-                      LAMA, T_AREST, T_EVENT, T_SPEED, WARN_LCP, WARN_LOCATE, WARNING, WINV,
+                      LAMA, SWAP_BUDGET, T_AREST, T_EVENT, T_SPEED, WARN_LCP, WARN_LOCATE, WARNING, WINV,
                       ZENO_PASSES, ZENO_SPAN, Events, ExactType, ModelType, NaiveType, Samples, StagesType, borrow,
                       from_table, keep, scratch)
 from .gaps import step_reach
@@ -151,7 +151,8 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
     ``ws.n[QB]``, ``ws.n[QDB]`` and ``ws.c[GB]``. Returns ``(n_ev, m, status)``:
     DONE, or HANDOFF when the step is for the fallback (:mod:`.fallback`): an
     event made no progress twice, the contact modes changed more than
-    MODE_BUDGET times, ZENO_PASSES passes advanced by less than ZENO_SPAN of
+    MODE_BUDGET times (or the held set was exchanged for another of its size
+    more than SWAP_BUDGET times), ZENO_PASSES passes advanced by less than ZENO_SPAN of
     the step (Zeno in several contacts), or MAX_EVENTS passes did not reach tb;
     MISSING when it needs the release stage and that is not compiled.
     """
