@@ -42,7 +42,7 @@ from .records import (AF, COAST, DONE, DRIFT, EXACT_AT, FALLBACK, FLAGS, GA, GB,
                       HANDOFF_MODES, HANDOFF_STUCK, HANDOFF_ZENO, IMPACT_LOG_FULL, LAM, LS, MAX_EVENTS,
                       MISSING, MODE_AT, MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT, NEED_FALLBACK, NEED_HOLD,
                       NEED_RELEASE, NONFINITE, PASSES_AT, Q0, QB, QD0, QDB, QDS, QS, RELEASE, RHS, RIDX, RINV, SET_AT, STAGES_AT,
-                      LAMA, SWAP_BUDGET, T_AREST, T_EVENT, T_SPEED, WARN_LCP, WARN_LOCATE, WARNING, WINV,
+                      SWAP_BUDGET, T_AREST, T_EVENT, T_SPEED, WARN_LCP, WARN_LOCATE, WARNING, WINV,
                       ZENO_PASSES, ZENO_SPAN, Events, ExactType, ModelType, NaiveType, Samples, StagesType, borrow,
                       from_table, keep, scratch)
 from .gaps import step_reach
@@ -307,7 +307,7 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
     fresh = True                 # whether ga holds the gaps at (t, q)
     factored = False             # whether L, rinv hold the factorization of the held rows at q
     low = lowest_free(ga, rest, C)
-    a_end, lam_end = ws.n[AF], ws.c[LAMA]
+    a_end = ws.n[AF]
     started = False              # whether w[5], ls[0] hold the accelerations and forces at (t, q, qd)
     while i < i_stop:
         ta = t0 + i * dt
@@ -329,7 +329,6 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
             coasted = vanish(a_end, n, tol, still) and on_level(jac, ridx, m, n, half, drift, h)
             if coasted:
                 for j in range(m):
-                    lam_end[j] = lam[j]
                     for s in range(1, 4):
                         ls[s, j] = lam[j]
         if not coasted:
@@ -359,23 +358,20 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
         if stop:       # (a step that coasted is taken again, by RK4)
             return i, 0 if coasted else 1, n_rec
         low = lowest_free(gb, rest, C) if looked else low - band    # (a bound on the free gaps at tb)
+        for d in range(n):
+            q[d] = qb[d]
+            qd[d] = qdb[d]
         if coasted:    # on its level: the next step's first stage is its end's
             for d in range(n):
-                q[d] = qb[d]
-                qd[d] = qdb[d]
                 w[5, d] = a_end[d]
             for j in range(m):
-                ls[0, j] = lam_end[j]
-            started = True
+                ls[0, j] = ls[1, j]
             factored = True
         else:
-            for d in range(n):
-                q[d] = qb[d]
-                qd[d] = qdb[d]
             factored = settle_rows(model, tb, q, qd, p, m, half, drift, h, ridx, jac, winv, A, L, rinv, y, lam)
             for d in range(n):       # what the projection moved any gap by, at most
                 low -= abs(q[d] - qb[d]) * tol[T_SPEED + d]
-            started = False
+        started = coasted
         fresh = False
         i += 1
         if i % record_every == 0 or i == n_total:
