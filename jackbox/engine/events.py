@@ -64,9 +64,12 @@ def locate(model, step, kind, pos, ta, q, qd, tl, fl, tr, fr, guess, p, tol, m, 
     level (let go there, or leaving) has its event later in the step, and
     taking it at the start made no progress (the step then went to the
     fallback, three times as often). If 200 iterations do not get there,
-    sets WARN_LOCATE in ``ws.k[FLAGS, 0]``.
+    sets WARN_LOCATE in ``ws.k[FLAGS, 0]``. Returns ``(tl, tr, last)``: last is
+    the time of the last probe, whose state is left in ``ws.n[QS]``,
+    ``ws.n[QDS]`` (-1: no probe, nothing left there).
     """
     side = 0
+    last = -1.0
     ttol = 4.0 * 2.220446049250313e-16 * max(abs(tr), tr - ta)
     ftol = GAP_ROUNDOFF * tol[T_EVENT] if kind == GAP_EVENT else -1.0
     t_start = tl
@@ -83,6 +86,7 @@ def locate(model, step, kind, pos, ta, q, qd, tl, fl, tr, fr, guess, p, tol, m, 
                 s = 0.5 * (tl + tr)
         s = min(max(s, tl + 0.5 * ttol), tr - 0.5 * ttol)
         f = event_value(model, step, kind, pos, ta, q, qd, s, p, tol, m, ws)
+        last = s
         if f >= 0.0:
             tl, fl = s, f
             if side == -1:
@@ -95,7 +99,7 @@ def locate(model, step, kind, pos, ta, q, qd, tl, fl, tr, fr, guess, p, tol, m, 
             side = 1
     if not done and tr - tl > ttol:
         ws.k[FLAGS, 0] |= WARN_LOCATE
-    return tl, tr
+    return tl, tr, last
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -234,6 +238,10 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
     # a dip whose cubic stays above zero by less than the cubic's own error is looked at (one
     # re-step to its bottom): a corner turning fast can dip below zero where its cubic does not
     dip = cubic_error(qd, ws.n[QDB], h, tol)
+    # the time whose RK4 state (and gaps) the last re-step left in ws.n[QS] (and ws.c[GS]); -1: none
+    # known. The state just before the crossing is stepped to again only where it is not that one
+    # (locate's last probe is its bracket's left end whenever it stops at the event to round-off)
+    at = -1.0
     best_l = -1.0
     best_k = -1
     t_hi = tb
@@ -257,6 +265,7 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
             if (hv < 0.0 or hv < dip < min(fa, fb) - hv) and (sr < 0.0 or ext[j] < sr):
                 sr = ext[j]
                 fr = event_value(model, step, gap_kind, k, ta, q, qd, ta + sr * h, p, tol, m, ws)
+                at = ta + sr * h
                 if fr >= 0.0:
                     sr = 1.0 if fb < 0.0 else -1.0
                     fr = fb
@@ -268,10 +277,14 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
             # a later bracket: only matters if this gap is already negative at the best time
             continue
         tl, fl = left_bracket(model, step, k, ta, h, fa, fb, da, db, sr, q, qd, p, tol, m, ws)
+        if da > 0.0:
+            at = -1.0           # (left_bracket may have stepped into the step)
         if fl <= 0.0:
             return ta  # touching now, with no resolvable flight before the crossing
         guess = ta + h * cubic_root(fa, fb, da, db, (tl - ta) / h, sr)
-        tl, tr = locate(model, step, gap_kind, k, ta, q, qd, tl, fl, tr, fr, guess, p, tol, m, ws)
+        tl, tr, last = locate(model, step, gap_kind, k, ta, q, qd, tl, fl, tr, fr, guess, p, tol, m, ws)
+        if last >= 0.0:
+            at = last
         if best_k < 0 or tl < best_l:
             best_l, best_k = tl, k
             t_hi = tr
@@ -280,7 +293,9 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
     # The state just before the first crossing; any other gap already below
     # its level there crossed earlier: locate it within [ta, best].
     for _ in range(C):
-        event_value(model, step, gap_kind, np.int64(best_k), ta, q, qd, best_l, p, tol, m, ws)
+        if at != best_l:
+            event_value(model, step, gap_kind, np.int64(best_k), ta, q, qd, best_l, p, tol, m, ws)
+            at = best_l
         g = ws.c[GS]
         worst = -1
         for k in range(C):
@@ -293,10 +308,15 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
         sr = (best_l - ta) / h
         tl, fl = left_bracket(model, step, np.int64(worst), ta, h, fa, fb, h * va[worst], h * vb[worst], sr,
                               q, qd, p, tol, m, ws)
+        if h * va[worst] > 0.0:
+            at = -1.0
         if fl <= 0.0:
             return ta
         guess = ta + h * cubic_root(fa, fb, h * va[worst], h * vb[worst], (tl - ta) / h, sr)
-        tl, tr = locate(model, step, gap_kind, np.int64(worst), ta, q, qd, tl, fl, best_l, fr, guess, p, tol, m, ws)
+        tl, tr, last = locate(model, step, gap_kind, np.int64(worst), ta, q, qd, tl, fl, best_l, fr, guess, p, tol,
+                              m, ws)
+        if last >= 0.0:
+            at = last
         best_l, best_k = tl, worst
     return best_l
 
@@ -360,8 +380,8 @@ def first_release(model, step, ta, tb, q, qd, p, tol, m, ws):
     for i in range(m):
         if lam_b[i] >= floor[i]:
             continue
-        tl, tr = locate(model, step, np.int64(FORCE_EVENT), np.int64(i), ta, q, qd, ta, max(lam_a[i], 0.0), t_hi,
-                        lam_b[i], -1.0, p, tol, m, ws)
+        tl, tr, _ = locate(model, step, np.int64(FORCE_EVENT), np.int64(i), ta, q, qd, ta, max(lam_a[i], 0.0), t_hi,
+                           lam_b[i], -1.0, p, tol, m, ws)
         if best < 0.0 or tr < best:
             best = tr
     return best
