@@ -12,13 +12,15 @@ The re-steps go through ``step``, the integrator's compiled function value
 :func:`first_release` carries a copy of it.
 """
 
+import math
+
 import numpy as np
 from numba import njit
 
 from .gaps import cubic_error, hermite, hermite_extrema, hermite_slope, step_reach
 from .modes import accel, contact_accel
-from .records import (AF, FLAGS, GA, GAP_ROUNDOFF, GB, GS, LAM, LAMA, LAMB, LEV, LR, LS, QB, QDB, QDS, QS, RIDX, T_AREST, T_EVENT, T_VREST, VA,
-                      VB, WARN_LOCATE)
+from .records import (AF, DLEV, FLAGS, GA, GAP_ROUNDOFF, GB, GS, HUMP, LAM, LAMA, LAMB, LEV, LR, LS, QB, QDB, QDS, QS, RIDX,
+                      T_AREST, T_EVENT, T_VREST, VA, VB, WARN_LOCATE)
 
 #: the deepest level (in T_EVENT below the held level) at which a free contact's event is looked for
 DEEPEST = 4.0
@@ -202,7 +204,12 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
     a return to T_EVENT below where it starts (and at least T_EVENT below the
     held level, at most DEEPEST T_EVENT), so that it takes no event to leave,
     also from a little deeper (where a projection of the other contacts moved it
-    when they were let go).
+    when they were let go). Such a contact that rises above the held level
+    inside the step (its cubic's hump above the level by more than the
+    cubic's error) has its return there as an event at the held level, from
+    the hump on: with the deep level for the whole step, one that flew off
+    and came back within it was taken up to 4 T_EVENT deep (a box corner
+    chattering on an elastic ground, a recorded sample 3.85e-12 L deep).
 
     Uses the trial state at tb in ``ws.n[QB]``, ``ws.n[QDB]`` and its gaps
     ``ws.c[GB]``; the gaps at ta are ``ws.c[GA]``. On success the state just
@@ -217,6 +224,7 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
     deep = half + tol[T_EVENT]
     gap_kind = np.int64(GAP_EVENT)
     ga, gb, va, vb, lev = ws.c[GA], ws.c[GB], ws.c[VA], ws.c[VB], ws.c[LEV]
+    hump, dlev = ws.c[HUMP], ws.c[DLEV]
     band = step_reach(qd, ws.n[QDB], h, tol)
     near = False
     for k in range(C):
@@ -234,6 +242,8 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
         # leaving, was a touch at the step's start that no update resolved)
         lev[k] = (min(max(deep, tol[T_EVENT] - ga[k]), DEEPEST * tol[T_EVENT])
                   if ga[k] + half < 0.0 and va[k] >= -tiny else half)
+        dlev[k] = lev[k]
+        hump[k] = -math.inf      # (the time from which lev[k] holds: the whole step)
     ext = ws.ext
     # a dip whose cubic stays above zero by less than the cubic's own error is looked at (one
     # re-step to its bottom): a corner turning fast can dip below zero where its cubic does not
@@ -248,10 +258,17 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
     for k in range(C):
         if rest[k]:
             continue
+        da, db = h * va[k], h * vb[k]
+        if lev[k] > half and da > 0.0:
+            # a deep start rising: above the held level at its cubic's hump, by more than the cubic's
+            # error (so RK4's state there is too), its return is an event at the held level from there on
+            if hermite_extrema(ga[k] + half, gb[k] + half, da, db, ext) > 0 and \
+                    hermite(ga[k] + half, gb[k] + half, da, db, ext[0]) > dip:
+                lev[k] = half
+                hump[k] = ta + ext[0] * h
         fa, fb = ga[k] + lev[k], gb[k] + lev[k]
         if min(fa, fb) >= band:
             continue
-        da, db = h * va[k], h * vb[k]
         # right end of the bracket: the step's end, or a dip of the cubic below its error
         nx = hermite_extrema(fa, fb, da, db, ext)
         sr = -1.0
@@ -298,11 +315,17 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
             at = best_l
         g = ws.c[GS]
         worst = -1
+        low = 0.0
         for k in range(C):
-            if not rest[k] and g[k] + lev[k] < 0.0 and (worst < 0 or g[k] + lev[k] < g[worst] + lev[worst]):
+            lk = lev[k] if best_l >= hump[k] else dlev[k]     # (before its hump, a deep start's own level)
+            if not rest[k] and g[k] + lk < 0.0 and (worst < 0 or g[k] + lk < low):
                 worst = k
+                low = g[k] + lk
         if worst < 0:
             return best_l
+        if best_l < hump[worst]:     # below its deep level before its hump: that level for the whole step
+            lev[worst] = dlev[worst]
+            hump[worst] = -math.inf
         fr = g[worst] + lev[worst]
         fa, fb = ga[worst] + lev[worst], gb[worst] + lev[worst]
         sr = (best_l - ta) / h

@@ -110,8 +110,10 @@ def calm(t, t_next, q, qd, qn, vn, p, tol, ext):
     gap near enough to look at, or for each that is, no crossing at the step's
     end and no dip of its cubic that the exact loop would step to. Where the
     exact loop would step into the step (to a dip, to locate a crossing),
-    this says no: the member goes through the exact loop. Returns ``(calm,
-    smallest gap at t_next)``.
+    this says no: the member goes through the exact loop; so it does for a
+    contact that starts the step below the held level without approaching
+    (its event level is the exact loop's to choose, and may change within the
+    step). Returns ``(calm, smallest gap at t_next)``.
     """
     if not finite(qn, vn):
         return False, 0.0
@@ -134,8 +136,9 @@ def calm(t, t_next, q, qd, qn, vn, p, tol, ext):
     tiny = 1e-3 * tol[_T_VREST_L]
     dip = _cubic_error(qd, vn, h, tol)
     for k in range(N_CONTACT):
-        lev = deep if ga[k] + half < 0.0 and va[k] >= -tiny else half
-        fa, fb = ga[k] + lev, gb[k] + lev
+        if ga[k] + half < 0.0 and va[k] >= -tiny:
+            return False, smallest      # a deep start (its level changes in the step): the exact loop's own
+        fa, fb = ga[k] + half, gb[k] + half
         if min(fa, fb) >= band:
             continue
         if fb < 0.0:

@@ -202,9 +202,11 @@ ROW_EXTRA = 3
 # copy, the forces at both ends of a step, the event level of each free
 # contact in a step (gap + level = 0 at its event), a solver's unknowns, the
 # reciprocals of a factorization's diagonal, the persistent contacts' forces at
-# the integrator's four stages (LS + stage)
+# the integrator's four stages (LS + stage), then per free contact in a step the time from which its
+# event is at the held level and its level before that (events.first_crossing: a deep start)
 GA, GB, GS, VA, VB, VREST, RHS, LAM, VT, LR, LX, R, LAMA, LAMB, LEV, Y, RINV, LS = range(18)
-SC = LS + 4
+HUMP, DLEV = LS + 4, LS + 5
+SC = LS + 6
 # rows of Scratch.n, (SN, n_dof) floats: the trial state at a step's end, the
 # state at a trial time, diag(M^-1), accelerations, the state at a step's start
 QB, QDB, QS, QDS, WINV, AF, ACC, Q0, QD0 = range(9)
