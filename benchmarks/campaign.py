@@ -1,6 +1,7 @@
 """Random scenes at the full ranges: every run completes, nothing penetrates, no energy is gained.
 
     python benchmarks/campaign.py [--examples 300] [--seed 0] [--out DIR]
+    python benchmarks/campaign.py --recheck FILE [--out DIR]
 
 The property tests of ``tests/test_stress.py`` draw random scenes (box size,
 wall, masses, jack size, start state, speeds, restitution, dt) and check each
@@ -16,6 +17,13 @@ script runs the same tests, with the same checks, at the ranges of the issue
 Each failing draw is classified by the check that failed, and written out
 (scene overrides and dt) so that it can be run again. Writes
 ``campaign.md`` and ``campaign.json``.
+
+Hypothesis's draws follow the runs' outcomes, so a change to the engine makes
+the same seed draw other scenes after the first that runs differently: to
+compare two versions of the code on the same scenes, ``--recheck FILE`` runs
+again every draw that a ``campaign.json`` lists as failed (or every draw of
+``results/campaign_known_failures.json``), with the same checks, and writes
+``recheck.md`` and ``recheck.json``.
 """
 
 from __future__ import annotations
@@ -35,6 +43,9 @@ sys.path.insert(0, str(ROOT))
 import jackbox  # noqa: E402
 from jackbox.fileio import write_atomic  # noqa: E402
 
+#: each family's base scene (tests/test_stress.py's ``base``) and its checks on one run (its functions)
+BASES = {"drops": ("drop", "check_drop_run"), "weightless square": ("float", "check_weightless_run"),
+         "weightless cross": ("cross", "check_weightless_run"), "prescribed box": ("hand", "check_prescribed_run")}
 FAMILIES = {
     "drops": ("test_random_drops_never_penetrate_nor_gain_energy", {},
               "box and square jack, gravity and the ground"),
@@ -128,6 +139,40 @@ def markdown(res: dict) -> str:
     return "\n".join(lines)
 
 
+def draws_in(path: Path) -> list[dict]:
+    """The draws a file lists: a campaign.json's failures, or a list under "draws" (each with its family)."""
+    data = json.loads(path.read_text())
+    if "draws" in data:
+        return list(data["draws"])
+    return [{"family": fam["family"], **f} for fam in data["families"] for f in fam["failures"]]
+
+
+def recheck(T, path: Path) -> dict:
+    """Every draw in ``path`` run again with its family's checks: which pass now, and how the others fail."""
+    out = []
+    for d in draws_in(path):
+        base, check = BASES[d["family"]]
+        t0 = time.perf_counter()
+        try:
+            getattr(T, check)(jackbox.load_scene(T.base(base), d["overrides"]), d["dt"])
+            kind, message = "pass", ""
+        except Exception as exc:          # a failed check: classified, the recheck goes on
+            kind, message = classify(exc), str(exc)[:400]
+        out.append({"family": d["family"], "was": d.get("check", ""), "now": kind, "message": message,
+                    "seconds": time.perf_counter() - t0, "dt": d["dt"], "overrides": d["overrides"]})
+        print(f"{d['family']}: {d.get('check', '?')} -> {kind}", flush=True)
+    return {"draws": out, "passed": sum(r["now"] == "pass" for r in out)}
+
+
+def recheck_markdown(res: dict) -> str:
+    lines = ["# Failing random scenes run again (benchmarks/campaign.py --recheck)", "",
+             f"Machine: {res['machine']}. Command: `{res['command']}`. "
+             f"{res['passed']} of {len(res['draws'])} pass now.", "",
+             "| family | failed then | now |", "| --- | --- | --- |"]
+    lines += [f"| {r['family']} | {r['was']} | {r['now']} |" for r in res["draws"]]
+    return "\n".join(lines + [""])
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -136,16 +181,34 @@ def main(argv=None) -> int:
     ap.add_argument("--families", nargs="+", choices=list(FAMILIES), default=list(FAMILIES),
                     help="which families of scenes (default: all)")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results", help="folder for the results")
+    ap.add_argument("--recheck", type=Path, metavar="FILE",
+                    help="instead: run again the failed draws a campaign.json (or campaign_known_failures.json) lists")
     args = ap.parse_args(argv)
     if args.examples < 1:
         ap.error(f"--examples must be at least 1, got {args.examples}")
+    if args.recheck is not None:
+        if not args.recheck.is_file():
+            ap.error(f"--recheck: no file {args.recheck}")
+        try:
+            draws_in(args.recheck)
+        except (ValueError, KeyError, TypeError) as exc:
+            ap.error(f"--recheck: {args.recheck} is not a campaign.json nor a list of draws ({exc})")
     import tests.test_stress as T
+
+    command = " ".join(["python", "benchmarks/campaign.py", *(argv if argv is not None else sys.argv[1:])])
+    if args.recheck is not None:
+        res = {"machine": f"{platform.machine()}, {os.cpu_count()} cores", "command": command,
+               **recheck(T, args.recheck)}
+        args.out.mkdir(parents=True, exist_ok=True)
+        write_atomic(args.out / "recheck.json", json.dumps(res, indent=1, default=str))
+        write_atomic(args.out / "recheck.md", recheck_markdown(res))
+        print(f"{res['passed']} of {len(res['draws'])} pass now; wrote {args.out / 'recheck.md'}")
+        return 0
 
     for key, value in RANGES.items():
         setattr(T, key, value)
     random.seed(args.seed)
-    res = {"machine": f"{platform.machine()}, {os.cpu_count()} cores",
-           "command": " ".join(["python", "benchmarks/campaign.py", *(argv if argv is not None else sys.argv[1:])]),
+    res = {"machine": f"{platform.machine()}, {os.cpu_count()} cores", "command": command,
            "ranges": RANGES, "families": [run_family(T, name, args.examples, args.seed) for name in args.families]}
     args.out.mkdir(parents=True, exist_ok=True)
     write_atomic(args.out / "campaign.json", json.dumps(res, indent=1, default=str))

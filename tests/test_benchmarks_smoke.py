@@ -146,6 +146,30 @@ def test_campaign_quick_mode(tmp_path):
     assert "| prescribed box" in (tmp_path / "campaign.md").read_text()
 
 
+def test_campaign_recheck_runs_listed_draws_again(tmp_path):
+    # --recheck: the draws a file lists, run again with their family's checks (here a weightless cross
+    # that the held steps' passes fixed, tests/test_stress.py's COARSE_TURNS: it must pass), and a
+    # file that is neither kind of list refused with one line
+    from tests.test_stress import COARSE_TURNS
+
+    dt, over = COARSE_TURNS["omega dt 2.0"]
+    draws = tmp_path / "draws.json"
+    draws.write_text(json.dumps({"draws": [{"family": "weightless cross", "check": "angular momentum drift",
+                                            "dt": dt, "overrides": {"gravity": 0.0, **over}}]}))
+    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "campaign.py"), "--recheck", str(draws),
+                           "--out", str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    result = json.loads((tmp_path / "recheck.json").read_text())
+    assert result["passed"] == 1 and [d["now"] for d in result["draws"]] == ["pass"]
+    assert "| weightless cross | angular momentum drift | pass |" in (tmp_path / "recheck.md").read_text()
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"something": 1}))
+    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "campaign.py"), "--recheck", str(bad)],
+                          cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 2 and "is not a campaign.json nor a list of draws" in done.stderr
+    assert "Traceback" not in done.stderr
+
+
 def _profile_module():
     import importlib.util
 

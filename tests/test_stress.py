@@ -430,7 +430,11 @@ def test_random_drops_never_penetrate_nor_gain_energy(data):
     """
     scene_base = base("drop")
     over, dt = data.draw(free_scene(scene_base, "square", 9.81, True))
-    scene = jackbox.load_scene(scene_base, over)
+    check_drop_run(jackbox.load_scene(scene_base, over), dt)
+
+
+def check_drop_run(scene, dt):
+    """The checks of :func:`test_random_drops_never_penetrate_nor_gain_energy` on a run of one second."""
     traj = simulate(scene, t_end=1.0, dt=dt)
     check_finite(traj)
     check_gaps(traj, scene)
@@ -746,8 +750,12 @@ def test_random_prescribed_box_never_penetrates(data):
             "jack.mass": data.draw(log_uniform(0.01, 10.0)),
             "restitution": data.draw(restitution),
             "initial.q": q, "initial.qd": qd}
-    scene = jackbox.load_scene(scene_base, over)
-    traj = simulate(scene, t_end=1.0, dt=data.draw(log_uniform(5e-4, 1e-2)))
+    check_prescribed_run(jackbox.load_scene(scene_base, over), data.draw(log_uniform(5e-4, 1e-2)))
+
+
+def check_prescribed_run(scene, dt):
+    """The checks of :func:`test_random_prescribed_box_never_penetrates` on a run of one second."""
+    traj = simulate(scene, t_end=1.0, dt=dt)
     check_finite(traj)
     check_gaps(traj, scene)
 
