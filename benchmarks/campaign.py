@@ -43,9 +43,6 @@ sys.path.insert(0, str(ROOT))
 import jackbox  # noqa: E402
 from jackbox.fileio import write_atomic  # noqa: E402
 
-#: each family's base scene (tests/test_stress.py's ``base``) and its checks on one run (its functions)
-BASES = {"drops": ("drop", "check_drop_run"), "weightless square": ("float", "check_weightless_run"),
-         "weightless cross": ("cross", "check_weightless_run"), "prescribed box": ("hand", "check_prescribed_run")}
 FAMILIES = {
     "drops": ("test_random_drops_never_penetrate_nor_gain_energy", {},
               "box and square jack, gravity and the ground"),
@@ -55,6 +52,10 @@ FAMILIES = {
                          "no gravity, no ground, cross jack"),
     "prescribed box": ("test_random_prescribed_box_never_penetrates", {}, "a box moved by a hand, gravity"),
 }
+#: each family's checks on one run (tests/test_stress.py's functions) and its base scene (its ``base``):
+#: the weightless families' is their test's structure
+CHECKS = {"drops": ("check_drop_run", "drop"), "weightless square": ("check_weightless_run", None),
+          "weightless cross": ("check_weightless_run", None), "prescribed box": ("check_prescribed_run", "hand")}
 #: the issue's ranges: jack-to-box mass ratio, speeds in sqrt(g L), the square jack's half-size in L
 RANGES = {"MASS_RATIO": (1e-4, 1e4), "SPEED": (0.1, 30.0), "SQUARE_SIZE": 0.99}
 
@@ -151,7 +152,8 @@ def recheck(T, path: Path) -> dict:
     """Every draw in ``path`` run again with its family's checks: which pass now, and how the others fail."""
     out = []
     for d in draws_in(path):
-        base, check = BASES[d["family"]]
+        check, base = CHECKS[d["family"]]
+        base = base or FAMILIES[d["family"]][1]["structure"]
         t0 = time.perf_counter()
         try:
             getattr(T, check)(jackbox.load_scene(T.base(base), d["overrides"]), d["dt"])

@@ -179,19 +179,23 @@ def left_bracket(model, step, k, ta, h, fa, fb, da, db, sr, q, qd, p, tol, m, ws
 
     The step's start, or, for a gap that is opening at the start (just after a
     bounce, fa near zero), the hump of the cubic through its values and rates
-    at both ends, when the RK4 state there is further from contact.
+    at both ends, when the RK4 state there is further from contact. Returns
+    ``(tl, fl, probe)``: probe is the time of the re-step to the hump, whose
+    state is left in ``ws.n[QS]`` (-1: none, nothing left there).
     """
     tl, fl = ta, fa
+    probe = -1.0
     if da > 0.0:
         ext = ws.ext
         nx = hermite_extrema(fa, fb, da, db, ext)
         for j in range(nx):
             if ext[j] < sr and hermite(fa, fb, da, db, ext[j]) > fa:
-                f = event_value(model, step, np.int64(GAP_EVENT), k, ta, q, qd, ta + ext[j] * h, p, tol, m, ws)
+                probe = ta + ext[j] * h
+                f = event_value(model, step, np.int64(GAP_EVENT), k, ta, q, qd, probe, p, tol, m, ws)
                 if f > fl:
-                    tl, fl = ta + ext[j] * h, f
+                    tl, fl = probe, f
                 break
-    return tl, fl
+    return tl, fl, probe
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -293,9 +297,9 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
         if best_k >= 0 and tr > t_hi:
             # a later bracket: only matters if this gap is already negative at the best time
             continue
-        tl, fl = left_bracket(model, step, k, ta, h, fa, fb, da, db, sr, q, qd, p, tol, m, ws)
-        if da > 0.0:
-            at = -1.0           # (left_bracket may have stepped into the step)
+        tl, fl, probe = left_bracket(model, step, k, ta, h, fa, fb, da, db, sr, q, qd, p, tol, m, ws)
+        if probe >= 0.0:
+            at = probe
         if fl <= 0.0:
             return ta  # touching now, with no resolvable flight before the crossing
         guess = ta + h * cubic_root(fa, fb, da, db, (tl - ta) / h, sr)
@@ -329,10 +333,10 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
         fr = g[worst] + lev[worst]
         fa, fb = ga[worst] + lev[worst], gb[worst] + lev[worst]
         sr = (best_l - ta) / h
-        tl, fl = left_bracket(model, step, np.int64(worst), ta, h, fa, fb, h * va[worst], h * vb[worst], sr,
-                              q, qd, p, tol, m, ws)
-        if h * va[worst] > 0.0:
-            at = -1.0
+        tl, fl, probe = left_bracket(model, step, np.int64(worst), ta, h, fa, fb, h * va[worst], h * vb[worst], sr,
+                                     q, qd, p, tol, m, ws)
+        if probe >= 0.0:
+            at = probe
         if fl <= 0.0:
             return ta
         guess = ta + h * cubic_root(fa, fb, h * va[worst], h * vb[worst], (tl - ta) / h, sr)
