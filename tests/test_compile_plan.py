@@ -24,14 +24,11 @@ import jackbox
 from jackbox import api, engine, loader
 from jackbox.ensemble import chaos, ensemble
 
+from .test_stress import SLIDING_HEAVY_JACK
+
 #: the engine's modules with compiled functions
 MODULES = ("records", "integrator", "gaps", "broad", "impact", "events", "modes", "fallback", "loop", "tolerances",
            "draws", "members")
-#: a weightless box spinning at 10 rad/s with a cross jack: some members need the fallback
-#: (benchmarks/contact.py, "weightless spinning box, cross jack")
-WEIGHTLESS = {"box.inner_half_width": 1.0, "box.wall_thickness": 0.1, "box.mass": 1000.0, "jack.mass": 0.01,
-              "jack.half_size": 0.1, "restitution": 0.5, "gravity": 0.0, "world.ground": False,
-              "initial.q": [0, 0, 0, -0.5, 0, 0.3], "initial.qd": [0, 0, 10, 0, -5, 10], "jack.shape": "cross"}
 
 
 def test_every_engine_function_is_cached_under_the_engine_digest():
@@ -94,14 +91,12 @@ def test_a_held_contact_compiles_the_release_stage_mid_run_and_changes_nothing(m
 
 
 def test_a_run_that_needs_the_fallback_compiles_it_mid_run_and_changes_nothing(monkeypatch, fresh_kernels):
-    scene = jackbox.load_scene("drop", WEIGHTLESS)
-    ens = ensemble(scene, 32, perturb={"theta_jack": 0.5}, t_end=1.0)
-    used = np.flatnonzero(ens.fallback > 0)
-    assert used.size, ens.fallback                   # (five of the 32 do)
-    whole = ens.trajectory(int(used[0]))
+    dt, over = SLIDING_HEAVY_JACK                    # (a heavy jack the exact method hands to the fallback)
+    scene = jackbox.load_scene("drop", over)
+    whole = jackbox.simulate(scene, t_end=1.0, dt=dt)
     assert len(whole.fallback_t)
     statuses = _without_lazy_stages(monkeypatch)
-    lazy = ens.trajectory(int(used[0]))
+    lazy = jackbox.simulate(scene, t_end=1.0, dt=dt)
     assert engine.MISSING in statuses and statuses[-1] == engine.DONE
     assert {"release", "fallback"} <= set(engine._loops)
     for key in ("t", "q", "qd", "fallback_t", "contact_t", "contact_event"):

@@ -534,17 +534,19 @@ ROCKING_IN_A_CORNER = (0.0004999999999999999, {
                    -51.59810224046483, -1.1183293390875735e-05]})
 
 
-def test_a_body_rocking_between_two_resting_pairs_is_handed_to_the_fallback():
+def test_a_body_rocking_between_two_resting_pairs_comes_to_rest():
     """Each impact of the rocking exchanged the held pair for the other (the set's size unchanged), which
     the mode budget did not count: 24000 impacts in 10 ms, past the tests' event budget. A step that
-    exchanges the set more than SWAP_BUDGET times now goes to the fallback, which settles the wedge."""
+    exchanged the set more than SWAP_BUDGET times went to the fallback, which settled the wedge. Its
+    bounces come to rest now (below the event band, or shorter than FLIGHT_TOL dt = 0.5 us), and the
+    exact method settles the wedge itself (101 impacts, no fallback)."""
     dt, over = ROCKING_IN_A_CORNER
     scene = jackbox.load_scene(base("cross"), {"gravity": 0.0, **over})
     check_weightless_run(scene, dt)
     traj = simulate(scene, t_end=1.0, dt=dt)
     assert len(traj.impact_t) < 1000, len(traj.impact_t)
-    assert traj.meta["fallback_reasons"] and set(traj.meta["fallback_reasons"]) == {"too many contact mode changes"}
-    assert 0 < traj.meta["fallback_seconds"] < 0.05
+    assert set(traj.meta["fallback_reasons"]) <= {"too many contact mode changes"}
+    assert traj.meta["fallback_seconds"] < 0.05
 
 
 @pytest.mark.parametrize("case", list(COARSE_TURNS))
@@ -698,6 +700,47 @@ def test_a_jack_pressed_into_a_corner_is_held_by_the_lcps_forces_none_pulling(ti
     assert np.abs(accel).max() <= 1e-12 * 9.81, accel
 
 
+def test_a_box_corner_on_an_elastic_ground_stops_bouncing_below_the_event_band():
+    """A draw of test_random_drops_never_penetrate_nor_gain_energy, kept (seed 3): a plastic
+    square jack lies on the box's wall while the box pivots on one corner on an elastic
+    ground (e = 1).
+
+    After each simultaneous impact the corner left at 2.5e-6 L/s, 7 times the rest speed
+    REST_TOL sqrt(g L), and came back 0.49 us later: with e = 1 every bounce as high as the
+    last, 3e-13 L, inside the event band. Over 20000 events in 7 ms (OverBudget). A bounce
+    that cannot rise a whole band above the held level is at rest now: the corner is held.
+    """
+    over = {"box.inner_half_width": 1.2517656065090836, "box.wall_thickness": 0.1674003877239431,
+            "box.mass": 1.0, "jack.mass": 1.0, "jack.half_size": 0.4981757095893548, "gravity": 9.81,
+            "restitution": 0.0, "ground_restitution": 1.0,
+            "initial.q": [0.13632009760169858, 2.451961881030888, 1.4278358107755693, -0.07570515489944027,
+                          2.482481123444938, -0.04522471736810618],
+            "initial.qd": [-7.664884973496688e-166, -0.26174230839549595, -8.642709466315943e-10,
+                           -0.12107770847307839, 0.13811169123086345, 1e-323]}
+    scene = jackbox.load_scene(base("drop"), over)
+    dt = 0.004549499233143745
+    check_drop_run(scene, dt)                  # (OverBudget before: 15446 events by t = 0.819 s)
+    traj = simulate(scene, t_end=1.0, dt=dt, budget=1000)
+    names = list(traj.constraint_names)
+    corner = names.index("ground:1")
+    assert np.sum(traj.impact_constraint == corner) < 100
+    held = traj.contact_t[(traj.contact_constraint == corner) & (traj.contact_event == 1)]
+    assert len(held) >= 1 and held[0] < 0.82          # the corner comes to rest where it chattered
+    assert len(traj.fallback_t) == 0
+
+
+#: a draw of the drops (dt, overrides) that the exact method hands to the fallback for a while: a heavy
+#: square jack sliding down the box's left wall while the box rocks on both ground corners
+SLIDING_HEAVY_JACK = (0.003657083753810756, {
+    "box.inner_half_width": 1.0, "box.wall_thickness": 0.12209745405802479, "box.mass": 1.0,
+    "jack.mass": 120.2201346620432, "jack.half_size": 0.5528944423671883, "gravity": 9.81,
+    "restitution": 0.0, "ground_restitution": 0.18588016644022456,
+    "initial.q": [0.629263885602878, 1.887629248919853, 1.319156318177324,
+                  0.9750557949057941, 1.798729748385598, 1.319156318177324],
+    "initial.qd": [-0.07738873114897458, 0.0, -0.3785512285256904, 0.3460737122441467,
+                   0.4974592476538934, 0.0]})
+
+
 def test_fallback_pays_for_its_projections_from_the_motion():
     """A draw of test_random_drops_never_penetrate_nor_gain_energy, kept: a heavy square
     jack (120 times the box) spinning at omega dt = 0.08 slides down the box's left wall
@@ -710,15 +753,9 @@ def test_fallback_pays_for_its_projections_from_the_motion():
     now paid from the motion about the centre of mass (fallback.pay_from_motion):
     no step of it rises beyond FALLBACK_RISE, and the horizontal momentum is kept.
     """
-    over = {"box.inner_half_width": 1.0, "box.wall_thickness": 0.12209745405802479, "box.mass": 1.0,
-            "jack.mass": 120.2201346620432, "jack.half_size": 0.5528944423671883, "gravity": 9.81,
-            "restitution": 0.0, "ground_restitution": 0.18588016644022456,
-            "initial.q": [0.629263885602878, 1.887629248919853, 1.319156318177324,
-                          0.9750557949057941, 1.798729748385598, 1.319156318177324],
-            "initial.qd": [-0.07738873114897458, 0.0, -0.3785512285256904, 0.3460737122441467,
-                           0.4974592476538934, 0.0]}
+    dt, over = SLIDING_HEAVY_JACK
     scene = jackbox.load_scene(base("drop"), over)
-    traj = simulate(scene, t_end=1.0, dt=0.003657083753810756)
+    traj = simulate(scene, t_end=1.0, dt=dt)
     assert len(traj.fallback_t) >= 1        # the case is about the fallback: it must be reached
     # each stretch says why the exact method handed it over
     assert len(traj.meta["fallback_reasons"]) == len(traj.fallback_t)
@@ -1156,7 +1193,9 @@ def test_a_weightless_spinning_box_finishes_every_member_without_a_solver_warnin
     finishes, and none needs a solver that gives up: the fallback's projection that keeps
     the angular momentum once made the position LCP singular and warned in most members.
     A cross jack, 64 members: the exact method now resolves the square jack's runs itself
-    (1 member in 400 reaches the fallback; 6% of the cross jack's, for too many mode changes).
+    (1 member in 400 reached the fallback; 6% of the cross jack's, for too many mode changes),
+    and since bounces below the event band or shorter than FLIGHT_TOL dt are at rest, every one
+    of these 64 (none reaches the fallback).
     """
     from jackbox.ensemble import ensemble
 
@@ -1166,7 +1205,7 @@ def test_a_weightless_spinning_box_finishes_every_member_without_a_solver_warnin
         "initial.qd": [0, 0, 10, 0, -5, 10]})
     ens = ensemble(scene, 64, perturb={"theta_jack": 0.5}, t_end=2.0)
     assert ens.completed.all(), ens.summary()
-    assert (ens.fallback > 0).any()          # the case exercises the fallback
+    assert (ens.fallback == 0).all(), ens.fallback
     assert ens.warnings.sum() == 0, ens.warnings
 
 

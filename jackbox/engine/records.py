@@ -96,7 +96,8 @@ T_RBOX = 6      #: radius of the box's outer bounding circle (broad phase, groun
 T_AREST = 7     #: normal accelerations below this are "still": a closed contact that does not leave faster stays held
 T_SPEED = 8     #: T_SPEED + i: bound on |d gap / d qd_i| (1 or a radius); the last slots
 #: a gap this fraction of T_EVENT above its level is at it (gaps of order L carry round-off of about
-#: 1e-16 L): event location stops there, and a bounce whose flight would rise less is at rest
+#: 1e-16 L): event location stops there (a bounce whose flight would rise less than T_EVENT is at
+#: rest: jackbox.engine.modes.update_contacts)
 GAP_ROUNDOFF = 1e-3
 #: a held gap within this many T_EVENT of its level, with a rate that moves it by less in a step, is
 #: not projected after a quiet held step (jackbox.engine.modes.settle_rows): a quarter of GAP_ROUNDOFF,

@@ -12,9 +12,13 @@ scene gives the same trajectory for any ``t_end`` (up to where the shorter
 ends). Contacts closer than 1e-9 L take part in an impact; events are located
 (and persistent contacts held) where a gap is -0.5e-12 L (a guard against
 round-off, far below anything visible). Normal speeds below 1e-7 sqrt(g L)
-(weightless: 1e-10 L / dt) count as at rest: such a contact gets a plastic
-impulse and becomes persistent, which ends a Zeno cascade of bounces
-(remaining flight time below 2e-7 sqrt(L/g) e / (1 - e)). A closed contact
+(weightless: 1e-10 L / dt), or below what a bounce needs to rise one event
+band (1e-12 L) against the contact's own normal acceleration, count as at
+rest, and so do those whose flight would last less than 1e-3 dt: such a
+contact gets a plastic impulse and becomes persistent, which ends a Zeno
+cascade of bounces (under gravity alone, its remaining flight time below the
+largest of 2e-7 sqrt(L/g), 3e-6 sqrt(L/g) and 1e-3 dt, times e / (1 - e))
+and an elastic contact's endless bounce at the scale of round-off. A closed contact
 whose gap would accelerate away at less than 1e-12 L / dt^2 (it leaves by
 less than the event depth in a step) is still: it stays held. Speed bounds (the largest rate of change
 of any gap per unit of each rate, and of any point of a prescribed box,
@@ -34,6 +38,9 @@ from .records import (MODEL_AT, T_AREST, T_BOXV, T_EVENT, T_GAP, T_RBOX, T_RJACK
 GAP_TOL, EVENT_TOL, REST_TOL = 1e-9, 1e-12, 1e-7
 #: weightless scenes: the speed scale is this many box half-widths per step
 WEIGHTLESS_SPEED = 1e-3
+#: a bounce whose flight would last less than this fraction of a step is at rest
+#: (jackbox.engine.modes.update_contacts)
+FLIGHT_TOL = 1e-3
 #: parameter slots read here (jackbox.scene.BASE_PARAMS: m_box, J_box, L, w_box, m_jack, J_jack, g, e,
 #: e_ground), then a_jack, or each vertex's x and y of a polygon jack
 L_AT, W_BOX_AT, G_AT, JACK_AT = 2, 3, 6, 9
@@ -74,6 +81,12 @@ def set_tolerances(model, p, jack_factor, n_points, dt, boxv, out):
         at += 3
     # x, y, theta of the jack
     out[at], out[at + 1], out[at + 2] = 1.0, 1.0, 1.5 * r_jack
+
+
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
+def shortest_flight(tol):
+    """FLIGHT_TOL dt, read from a tolerance row (its T_AREST is T_EVENT / dt^2)."""
+    return FLIGHT_TOL * math.sqrt(tol[T_EVENT] / tol[T_AREST])
 
 
 @njit(cache=True)
