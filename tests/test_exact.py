@@ -107,16 +107,20 @@ def test_zeno_bounces_accumulate_into_rest_at_the_analytic_time(still, e):
     # exactly: held at the event level (gap -0.5e-12 L) to round-off, no motion,
     # no more impulses.
     # A landing slower than the rest speed ends the cascade early by the flights it
-    # skips. The rest speed is REST_TOL sqrt(g L), or what a bounce needs to rise a
-    # whole event band (EVENT_TOL L) above the level where contacts are held, here
-    # sqrt(2 g EVENT_TOL L), the larger (4.4e-6 against 3.1e-7 L/s). With incoming speed
-    # v < v_rest / e, the flights skipped last 2 e v / (g (1 - e)) < 2 v_rest / (g (1 - e))
-    # (1.8e-6 s at e = 0.5; measured 5.9e-7, 1.5e-6, 2.4e-6 s at e = 0.3, 0.5, 0.7).
-    # Never late: 1e-12 s of round-off.
+    # skips. The rest speed is the largest of REST_TOL sqrt(g L) (3.1e-7 L/s), what a
+    # bounce needs to rise a whole event band above the level where contacts are held,
+    # sqrt(2 g EVENT_TOL L) (4.4e-6), and what a flight of FLIGHT_TOL dt needs,
+    # g FLIGHT_TOL dt / 2 (4.9e-6). With incoming speed v < v_rest / e, the flights
+    # skipped last 2 e v / (g (1 - e)) < 2 v_rest / (g (1 - e)) (2.0e-6 s at e = 0.5;
+    # measured 5.9e-7, 1.5e-6, 2.4e-6 s at e = 0.3, 0.5, 0.7). Never late: 1e-12 s of
+    # round-off.
+    from jackbox.engine.tolerances import FLIGHT_TOL
+
     t0 = math.sqrt(2 * (L - A_JACK) / G)
     t_rest = t0 * (1 + e) / (1 - e)
     traj = jackbox.simulate(still, t_end=t_rest + 0.2, params={"e": e})
-    v_rest = max(jackbox.api.REST_TOL * math.sqrt(G * L), math.sqrt(2 * G * jackbox.api.EVENT_TOL * L))
+    v_rest = max(jackbox.api.REST_TOL * math.sqrt(G * L), math.sqrt(2 * G * jackbox.api.EVENT_TOL * L),
+                 0.5 * G * FLIGHT_TOL * still.dt)
     early = 2 * v_rest / (G * (1 - e))
     changes = traj.contact_changes
     assert list(changes["event"]) == ["rest", "rest"]
