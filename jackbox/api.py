@@ -21,7 +21,7 @@ import numpy as np
 
 from . import __version__, loader
 from . import engine as K
-from .engine.tolerances import EVENT_TOL, GAP_TOL, REST_TOL  # noqa: F401  (the exact method's, relative to L)
+from .engine.tolerances import EVENT_TOL, FLIGHT_TOL, GAP_TOL, REST_TOL  # noqa: F401  (relative to L; FLIGHT_TOL to dt)
 from .errors import NonFiniteStateError, RunStoppedError, SimulationError, SolverWarning
 from .progress import progress_bar
 from .scene import Scene, contact_gaps, contact_gaps_many, is_number, jack_points, load_scene, param_array
