@@ -354,7 +354,8 @@ WARNINGS = {K.WARN_LCP: ("lcp", "an iterative contact solve stopped before it co
 
 #: why the exact method handed a stretch to the fallback (meta["fallback_reasons"], one per stretch)
 HANDOFF_REASONS = {K.HANDOFF_STUCK: "an event made no progress", K.HANDOFF_MODES: "too many contact mode changes",
-                   K.HANDOFF_ZENO: "Zeno in several contacts", K.HANDOFF_EVENTS: "too many events in one step"}
+                   K.HANDOFF_ZENO: "Zeno in several contacts", K.HANDOFF_EVENTS: "too many events in one step",
+                   K.HANDOFF_DENSE: "a bounce that neither shrinks nor stops"}
 
 
 def fallback_intervals(t, k, t_end: float) -> np.ndarray:

@@ -117,6 +117,24 @@ def test_members_grazing_the_walls_have_the_bits_they_have_alone(entries, tmp_pa
         assert same_bits(getattr(lanes, key), getattr(alone, key)), key
 
 
+def test_members_in_a_run_of_dense_steps_have_the_bits_they_have_alone(entries):
+    """A run of dense steps (loop.exact_steps, DENSE_STEPS) is counted in the member's modes across calls.
+
+    The elastic cross of tests/test_stress.py that rocks on the wall every 50 us: its members go to the
+    fallback after DENSE_STEPS dense steps, counted by the exact loop alone; a member in the middle of a
+    run stays out of the lanes (members.is_free), where nothing would count its quiet steps.
+    """
+    from .test_stress import ROCKING_ELASTIC_JACK
+
+    dt, over = ROCKING_ELASTIC_JACK
+    scene = jackbox.load_scene("drop", over)
+    lanes, alone = both(scene, LANES + 3, entries, perturb={"theta_jack": 1e-9}, t_end=1.0, dt=dt, seed=2)
+    # (3 of the 35 rock long enough for it: the others fall into other poses)
+    assert np.all(alone.status == 0) and np.count_nonzero(alone.fallback > 0) >= 2, alone.fallback
+    for key in ARRAYS:
+        assert same_bits(getattr(lanes, key), getattr(alone, key)), key
+
+
 def test_any_split_into_blocks_gives_the_same_bits(entries):
     kw = dict(perturb={"theta_jack": 1e-3}, t_end=2.0, seed=1, samples=[1.0], lanes=True)
     whole = ensemble("shaken", 2 * LANES + 1, **kw)

@@ -668,7 +668,7 @@ def test_a_jack_pressed_into_a_corner_is_held_by_the_lcps_forces_none_pulling(ti
     import numba
 
     from jackbox.engine.modes import contact_accel, update_contacts
-    from jackbox.engine.records import AF, LAM, MODEL_AT, RIDX, T_AREST, T_EVENT, Events, ModelType, from_table, scratch
+    from jackbox.engine.records import AF, LAM, MODE_SLOTS, MODEL_AT, RIDX, T_AREST, T_EVENT, Events, ModelType, from_table, scratch
 
     scene = scene_from_text(TILTED, "tilted.toml")
     run = api.prepare(scene)
@@ -684,7 +684,7 @@ def test_a_jack_pressed_into_a_corner_is_held_by_the_lcps_forces_none_pulling(ti
     def held(table, q, qd, p, tol):
         model = from_table(table, MODEL_AT, ModelType)
         ws = scratch(model)
-        rest = np.zeros(model.n_contact + 2, np.int8)
+        rest = np.zeros(model.n_contact + MODE_SLOTS, np.int64)
         log = Events(np.zeros(64), np.zeros(64, np.int64), np.zeros(64, np.int64))
         _, m = update_contacts(model, 0.0, q, qd, p, tol, rest, ws, log, 0)
         contact_accel(model, 0.0, q, qd, p, m, ws.n[AF], ws)
@@ -727,6 +727,60 @@ def test_a_box_corner_on_an_elastic_ground_stops_bouncing_below_the_event_band()
     held = traj.contact_t[(traj.contact_constraint == corner) & (traj.contact_event == 1)]
     assert len(held) >= 1 and held[0] < 0.82          # the corner comes to rest where it chattered
     assert len(traj.fallback_t) == 0
+
+
+#: a draw of the drops (dt, overrides), seed 6: a tiny elastic cross (5% of the box) whose tip bounces
+#: on the wall of a box that slides on both ground corners, every 50 us, neither shrinking nor stopping
+ROCKING_ELASTIC_JACK = (0.0005, {
+    "box.inner_half_width": 0.11258258637345499, "box.wall_thickness": 0.0390997242586913,
+    "box.mass": 1.5848931924611136, "jack.mass": 2.5118864315095806, "jack.half_size": 0.00562912931867275,
+    "gravity": 9.81, "restitution": 1.0, "ground_restitution": 0.3591523235924468,
+    "initial.q": [0.07303871667917039, 0.19901981757947745, 1.1691722922917025, 0.07303872840274173,
+                  0.1990198126003727, 1.1691722922917025],
+    "initial.qd": [0.43881938375120844, -0.11928238798607879, -2.0633532577189525e-301, 0.43881938375120844,
+                   -0.2677933359141878, 13.950785107586013]})
+
+
+def test_an_elastic_bounce_that_neither_shrinks_nor_stops_goes_to_the_fallback():
+    """A draw of test_random_drops_never_penetrate_nor_gain_energy, kept (seed 6): over the event budget.
+
+    From t = 0.69 s one tip of an elastic cross (e = 1) strikes the box's wall every
+    50 us at 3e-4 m/s, 15 impacts a step of 0.5 ms, as high each time: no Zeno cascade,
+    and too fast for the rest speed. 25982 events in 1 s. DENSE_STEPS steps in a row
+    with DENSE_EVENTS slow approaches or more now hand the next steps to the fallback,
+    whose plastic rule for slow approaches lays the tip down.
+    """
+    dt, over = ROCKING_ELASTIC_JACK
+    scene = jackbox.load_scene(base("drop"), over)
+    check_drop_run(scene, dt)                          # (OverBudget before, by t = 0.75 s)
+    traj = simulate(scene, t_end=1.0, dt=dt, budget=5000)
+    assert "a bounce that neither shrinks nor stops" in traj.meta["fallback_reasons"]
+    assert 0.69 < traj.fallback_t[0, 0] < 0.75
+    assert traj.impact_t.max() < 0.75                  # (at rest for good after the fallback)
+
+
+def test_a_step_with_a_thousand_passes_goes_to_the_fallback():
+    """A draw of test_random_drops_never_penetrate_nor_gain_energy, kept (seed 5): over the event budget.
+
+    An elastic square jack (e = 1) lies on the floor of a box that the ground (e = 0.27)
+    holds. Jack and box fall together, so the jack's free normal acceleration is zero and
+    no rest speed stops its bounces: from t = 0.51 s three steps took 5225 events each,
+    every 0.34 us, then the pair bounced together every 69 us, 21000 events in 60 ms. A
+    step now goes to the fallback after MAX_EVENTS passes (1024; was 4096).
+    """
+    dt = 0.0017840580479765928
+    over = {"box.inner_half_width": 0.1519873226387709, "box.wall_thickness": 0.018104965250806845,
+            "box.mass": 5.332317463528418, "jack.mass": 28.43360953185014, "jack.half_size": 0.07599366131938545,
+            "gravity": 9.81, "restitution": 1.0, "ground_restitution": 0.2682787478118283,
+            "initial.q": [1.811830075997388e-08, 0.5107432683318945, -0.24903167413433214, -0.023126898085901473,
+                          0.5612837175300548, -1.2136785739245701],
+            "initial.qd": [-0.05960532066549205, 7.846233293052586e-235, -0.3040834431744944,
+                           -0.036156015001770445, 0.04978881859331464, 1.0361065858598555]}
+    scene = jackbox.load_scene(base("drop"), over)
+    check_drop_run(scene, dt)                          # (OverBudget before, by t = 0.54 s)
+    traj = simulate(scene, t_end=1.0, dt=dt, budget=5000)
+    assert traj.meta["fallback_reasons"][0] == "too many events in one step"
+    assert 0.5 < traj.fallback_t[0, 0] < 0.52
 
 
 #: a draw of the drops (dt, overrides) that the exact method hands to the fallback for a while: a heavy

@@ -38,13 +38,13 @@ from numba import njit
 from .impact import resolve_impacts
 from .integrator import held_passes, rk4_rows
 from .modes import held_accel, log_event, on_level, project_rest, rest_index, settle_rows
-from .records import (AF, COAST, DONE, DRIFT, EXACT_AT, FALLBACK, FLAGS, GA, GB, HANDOFF, HANDOFF_AT, HANDOFF_EVENTS,
-                      HANDOFF_MODES, HANDOFF_STUCK, HANDOFF_ZENO, IMPACT_LOG_FULL, LAM, LS, MAX_EVENTS,
-                      MISSING, MODE_AT, MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT, NEED_FALLBACK, NEED_HOLD,
-                      NEED_RELEASE, NONFINITE, PASSES_AT, Q0, QB, QD0, QDB, QDS, QS, RELEASE, RHS, RIDX, RINV, SET_AT, STAGES_AT,
-                      SWAP_BUDGET, T_AREST, T_EVENT, T_SPEED, WARN_LCP, WARN_LOCATE, WARNING, WINV,
-                      ZENO_PASSES, ZENO_SPAN, Events, ExactType, ModelType, NaiveType, Samples, StagesType, borrow,
-                      from_table, keep, scratch)
+from .records import (AF, COAST, DENSE_AT, DENSE_EVENTS, DENSE_STEPS, DONE, DRIFT, EXACT_AT, FALLBACK, FLAGS, GA, GB,
+                      HANDOFF, HANDOFF_AT, HANDOFF_DENSE, HANDOFF_EVENTS, HANDOFF_MODES, HANDOFF_STUCK, HANDOFF_ZENO,
+                      IMPACT_LOG_FULL, LAM, LS, MAX_EVENTS, MISSING, MODE_AT, MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT,
+                      NEED_FALLBACK, NEED_HOLD, NEED_RELEASE, NONFINITE, PASSES_AT, Q0, QB, QD0, QDB, QDS, QS, RELEASE,
+                      RHS, RIDX, RINV, SET_AT, SLOW_AT, STAGES_AT, SWAP_BUDGET, T_AREST, T_EVENT, T_SPEED, WARN_LCP, WARN_LOCATE,
+                      WARNING, WINV, ZENO_PASSES, ZENO_SPAN, Events, ExactType, ModelType, NaiveType, Samples, StagesType,
+                      borrow, from_table, keep, scratch)
 from .gaps import step_reach
 
 
@@ -421,6 +421,7 @@ def enter_fallback(t, reason, rest, C, log, n_ev):
             rest[k] = 0
     rest[C + MODE_AT] = 1
     rest[C + SET_AT] = -1
+    rest[C + DENSE_AT] = 0
     return n_ev
 
 
@@ -501,6 +502,7 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
                     complete_samples(model, p, out, n0, n_rec, ws)
                 if i_quiet > i:
                     ga_ok = False
+                    rest[C + DENSE_AT] = 0      # (quiet steps: no events)
                     i = i_quiet
                     next_rec = (i // record_every + 1) * record_every
                     if i == i_end:
@@ -514,6 +516,7 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
                     for d in range(n):
                         if not (math.isfinite(q[d]) and math.isfinite(qd[d])):
                             return i_quiet, n_rec, n_ev, NONFINITE
+                    rest[C + DENSE_AT] = 0
                     i = i_quiet
                     next_rec = (i // record_every + 1) * record_every
                     if i == i_end:
@@ -528,6 +531,7 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
         for k in range(C + MODE_SLOTS):
             rest0[k] = rest[k]
         n_before = n_ev
+        ws.k[FLAGS, SLOW_AT] = 0
         if rest[C + MODE_AT] == -1:       # find the contact set again (a chaos twin was moved)
             rest[C + MODE_AT] = 0
             n_ev, m = stages.update(model, t, q, qd, p, tol, rest, ws, log, n_ev)
@@ -575,6 +579,16 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
                         return i, n_rec, n_before, MISSING
                     n_ev = enter_fallback(t, ws.k[FLAGS, HANDOFF_AT], rest, C, log, n_before)
                     n_ev, m = stages.fallback(model, stages.update, t, dt, q, qd, p, tol, rest, ws, log, n_ev)
+                    ga_ok = False
+        if rest[C + MODE_AT] == 0:
+            # a bounce that neither shrinks nor stops: DENSE_STEPS dense steps in a row hand the next to the fallback
+            if ws.k[FLAGS, SLOW_AT] < DENSE_EVENTS:
+                rest[C + DENSE_AT] = 0
+            else:
+                rest[C + DENSE_AT] += 1
+                if rest[C + DENSE_AT] >= DENSE_STEPS:
+                    n_ev = enter_fallback(t_next, np.int64(HANDOFF_DENSE), rest, C, log, n_ev)
+                    m = 0
                     ga_ok = False
         if ws.k[FLAGS, 0]:        # (a call per step otherwise: the flags are almost always clear)
             n_ev = log_warnings(t_next, ws, log, n_ev)

@@ -424,8 +424,12 @@ ALONE = 1
 
 @njit(cache=True, no_cpython_wrapper=True)
 def is_free(rest, C):
-    """Whether a member's modes leave it in free flight: no contact held, the exact method on."""
-    for k in range(C + MODE_AT + 1):
+    """Whether a member's modes leave it in free flight: no contact held, the exact method on, no run of dense steps.
+
+    (A run of dense steps is counted by the exact loop only, and its quiet steps end it: a member in the
+    middle of one stays there, so that its count is the one it would have alone.)
+    """
+    for k in range(C + MODE_SLOTS):
         if rest[k] != 0:
             return False
     return True
