@@ -258,9 +258,11 @@ def test_ensemble_members_that_went_through_a_wall_unseen_say_so():
     ens = ensemble(jackbox.load_scene("drop", {"world.gravity": 1e20}), 3, t_end=0.05, lanes=False)
     assert list(ens.status) == [INSIDE] * 3 and np.isnan(ens.q).all()
     assert "through a wall unseen" in ens.summary()
-    # and a chaos study of the same: the pairs' stretches measured the tunnelling, not the dynamics
+    # and a chaos study of the same, at g = 1e12 (2.2 L inside the ground by t = 0.009 s): the pairs'
+    # stretches measured the tunnelling, not the dynamics. (At 1e20 the twins' states end non-finite
+    # since held steps are cut into more passes, integrator.held_passes: NONFINITE, as loud.)
     for lanes in (False, True):
-        study = chaos(jackbox.load_scene("drop", {"world.gravity": 1e20}), 3, t_end=0.05, lanes=lanes)
+        study = chaos(jackbox.load_scene("drop", {"world.gravity": 1e12}), 3, t_end=0.05, lanes=lanes)
         assert list(study.status) == [INSIDE] * 3, lanes
         assert np.isnan(study.ftle).all() and np.isnan(study.stretch).all() and np.isnan(study.q).all()
         assert "3 through a wall unseen" in study.summary()

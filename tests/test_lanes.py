@@ -118,10 +118,10 @@ def test_members_grazing_the_walls_have_the_bits_they_have_alone(entries, tmp_pa
 
 
 def test_members_in_a_run_of_dense_steps_have_the_bits_they_have_alone(entries):
-    """A run of dense steps (loop.exact_steps, DENSE_STEPS) is counted in the member's modes across calls.
+    """A run of dense steps (loop.exact_steps, DENSE_SCORE) is scored in the member's modes across calls.
 
     The elastic cross of tests/test_stress.py that rocks on the wall every 50 us: its members go to the
-    fallback after DENSE_STEPS dense steps, counted by the exact loop alone; a member in the middle of a
+    fallback after a run of dense steps, scored by the exact loop alone; a member in the middle of a
     run stays out of the lanes (members.is_free), where nothing would count its quiet steps.
     """
     from .test_stress import ROCKING_ELASTIC_JACK

@@ -5,8 +5,9 @@ MODE_BUDGET, more passes than MAX_EVENTS, or an event that makes no progress
 (a contact touching at round-off level that neither an impulse nor the
 accelerations' LCP moves on), the loop (:mod:`.loop`) undoes the step and
 integrates it, and those after it, by Moreau-Jean time-stepping: first order,
-but it cannot stall. So it does the steps after DENSE_STEPS dense steps in a
-row (a bounce that neither shrinks nor stops: see :data:`~.records.DENSE_STEPS`). Each of its steps is (Moreau's midpoint rule, theta = 1/2)
+but it cannot stall. So it does the steps after a run of dense steps (a
+bounce that neither shrinks nor stops: :data:`~.records.DENSE_SCORE`). Each of
+its steps is (Moreau's midpoint rule, theta = 1/2)
 
 * ``q_m = q + h/2 qd``; free rates ``u = qd + h M^-1 f(t + h/2, q_m, qd)``;
 * the contacts within reach (gap at q_m, less what the step can close, below

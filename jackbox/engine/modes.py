@@ -327,8 +327,8 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
     # of the random drops that failed the event budget. The acceleration here is the free
     # one: a jack on the floor of a box held on the ground falls with the box, so its bounces,
     # 0.34 us apart, are not caught here; the loop hands such a step to the fallback after
-    # MAX_EVENTS passes, and a slower bounce that neither shrinks nor stops after DENSE_STEPS
-    # dense steps: records.DENSE_STEPS.)
+    # MAX_EVENTS passes, and a slower bounce that neither shrinks nor stops after a run of
+    # dense steps: records.DENSE_SCORE.)
     a = ws.n[ACC]
     model.accel(t, q, qd, p, a)
     vrest = ws.c[VREST]

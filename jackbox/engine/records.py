@@ -67,25 +67,28 @@ SWAP_BUDGET = 64
 #: rest speed does not end): ZENO_PASSES passes through a step that advance its time by less than
 #: ZENO_SPAN of the step also hand the step to the fallback
 ZENO_PASSES, ZENO_SPAN = 32, 1e-3
-#: a stretch of DENSE_STEPS steps in a row, each with DENSE_EVENTS slow approaches or more in its impacts
-#: (slower than SLOW T_VREST: 1e-2 sqrt(g L), a bounce that rises less than 5e-5 L), hands the steps after
-#: it to the fallback, whose plastic rule for approaches slower than what a step's forces add ends it: a
-#: bounce that neither shrinks (Zeno) nor stops (the rest speed), such as an elastic jack rocking every
-#: 50 us on the floor of a box that the ground holds (a random drop: 25982 events in 1 s). A legitimate
-#: cascade is shorter (the drop at e = 0.6 has at most 9 steps in a row with 8 events in 10 s, a Zeno
-#: cascade one or two); a fast jack rattling elastically (70 hits a step) has no slow approach. Each
-#: step's slow approaches are counted in ``ws.k[FLAGS, SLOW_AT]`` (the contact update adds them), the
-#: run of dense steps in ``rest`` (DENSE_AT), so that it goes on across calls
-DENSE_EVENTS, DENSE_STEPS, SLOW = 8, 32, 1e5
+#: a run of dense steps (each with DENSE_EVENTS approaches or more in its impacts slower than SLOW
+#: T_VREST: 1e-2 sqrt(g L), a bounce that rises less than 5e-5 L) hands the steps after it to the
+#: fallback once the sum over its steps of max(slow approaches, DENSE_FLOOR) reaches DENSE_SCORE: 32
+#: steps at the least density, 3 at 400 a step. The fallback's plastic rule for approaches slower than
+#: what a step's forces add ends the bounce. This is a bounce that neither shrinks (Zeno) nor stops (the
+#: rest speed): an elastic cross rocking on the wall every 50 us (a random drop: 25982 events in 1 s),
+#: or an elastic jack bouncing with the box it lies in, the box held by the ground (430 impacts a step).
+#: A legitimate cascade scores less: the drop at e = 0.6 has at most 9 steps in a row with 8 events in
+#: 10 s, a Zeno cascade at e = 0.99 some 230 + 70 bounces in its last two steps; a fast jack rattling
+#: elastically (70 hits a step at 1e4 L/s) has no slow approach. Each step's slow approaches are counted
+#: in ``ws.k[FLAGS, SLOW_AT]`` (the contact update adds them), the run's score in ``rest`` (DENSE_AT), so
+#: that it goes on across calls
+DENSE_EVENTS, DENSE_FLOOR, DENSE_SCORE, SLOW = 8, 32, 1024, 1e5
 #: why the exact method handed a step to the fallback, logged as the FALLBACK event's "contact" on entry
 #: (0 on leaving) and kept in ``ws.k[FLAGS, HANDOFF_AT]`` until then: an event that made no progress twice,
 #: more than MODE_BUDGET mode changes, Zeno in several contacts (ZENO_PASSES passes), MAX_EVENTS passes,
-#: DENSE_STEPS dense steps in a row (handed over after the last of them)
+#: a run of dense steps that reached DENSE_SCORE (handed over after the last of them)
 HANDOFF_STUCK, HANDOFF_MODES, HANDOFF_ZENO, HANDOFF_EVENTS, HANDOFF_DENSE = 1, 2, 3, 4, 5
 HANDOFF_AT = 2
 #: slot of ws.k[FLAGS] with the RK4 passes of the grid step's held steps (integrator.held_passes; 0: one)
 PASSES_AT = 3
-#: slot of ws.k[FLAGS] with the slow approaches in the impacts of the step (see DENSE_STEPS)
+#: slot of ws.k[FLAGS] with the slow approaches in the impacts of the step (see DENSE_SCORE)
 SLOW_AT = 4
 #: Moreau-Jean steps with an unchanged contact set before the exact method takes over again
 STABLE_STEPS = 8
@@ -94,7 +97,7 @@ MAX_ENUMERATED = 10
 #: slots after the contacts' modes in a run's mode array (``rest``): the fallback's state
 #: (MODE_AT: 0 exact, -1 exact with the contact set to be found again, s >= 1 in the fallback
 #: with s - 1 steps of an unchanged contact set), that contact set (a bit mask, SET_AT) and the
-#: exact method's dense steps in a row (DENSE_AT: see DENSE_STEPS)
+#: score of the exact method's run of dense steps (DENSE_AT: see DENSE_SCORE)
 MODE_SLOTS = 3
 MODE_AT, SET_AT, DENSE_AT = 0, 1, 2
 
