@@ -99,6 +99,12 @@ REST_CAP = 1e-8
 #: resting steps at omega dt = 0.72), over ~150 weightless runs with resting contact;
 #: the cap is 2.5 times the worst step.
 ANGULAR = 1e-12
+#: the angular momentum's scale is at least this fraction of the bodies' reach (box half-size plus the
+#: farthest centre from the origin) times their momentum. A random weightless square set at heights and
+#: angles of 1e-190 (the property test's floats), colliding head on, has angular momentum terms of 5e-190:
+#: its two corners' impulses on the wall, torques of about a lambda with lever components of 1e-189 a
+#: lambda, left the total off by 3e-190 (0.62 of that "scale"), round-off of torques of 0.02
+ANGULAR_FLOOR = 1e-3
 ANGULAR_REST_CAP = 2e-10
 #: a fallback step (Moreau-Jean, first order: the drift it projects away moves the bodies by
 #: O(h^2)) may raise the energy by at most this much of the scale, and a whole fallback stretch
@@ -350,6 +356,10 @@ def momenta(traj, P):
     ang_scale = max((mb * (np.abs(q[:, 0] * qd[:, 1]) + np.abs(q[:, 1] * qd[:, 0])) + Jb * np.abs(qd[:, 2])
                      + mj * (np.abs(q[:, 3] * qd[:, 4]) + np.abs(q[:, 4] * qd[:, 3]))
                      + Jj * np.abs(qd[:, 5])).max(), 1e-300)
+    # no less than ANGULAR_FLOOR of the bodies' reach times their momentum: an impulse's torques about the
+    # origin, whose round-off the total carries, are of that size even where the total's own terms are not
+    reach = np.abs(q[:, [0, 1, 3, 4]]).max() + P["L"]
+    ang_scale = max(ang_scale, ANGULAR_FLOOR * reach * lin_scale)
     return linear, angular, lin_scale, ang_scale
 
 
@@ -547,6 +557,29 @@ def test_a_body_rocking_between_two_resting_pairs_comes_to_rest():
     assert len(traj.impact_t) < 1000, len(traj.impact_t)
     assert set(traj.meta["fallback_reasons"]) <= {"too many contact mode changes"}
     assert traj.meta["fallback_seconds"] < 0.05
+
+
+def test_a_head_on_collision_at_subnormal_heights_is_measured_against_its_torques():
+    """A draw of test_random_weightless_scenes_keep_momentum (seed 5): the checks' angular scale (ANGULAR_FLOOR).
+
+    Box and square jack at heights and angles of 1e-190, moving along x: the angular momentum's terms
+    are 5e-190. The jack's two corners strike the wall together; their torques, about 0.06 lambda each,
+    cancel, and their lever components of 1e-189 lambda are below those torques' round-off: the total
+    moves by 3e-190, which the run's own terms made a drift of 0.62 (allowed 1e-12). Measured against
+    the torques the impulses exchange, it is round-off.
+    """
+    over = {"box.inner_half_width": 0.4212306069085486, "box.wall_thickness": 0.13023431268672045,
+            "box.mass": 1.0, "jack.mass": 0.45031610784581844, "jack.half_size": 0.0589559987986606,
+            "gravity": 0.0, "restitution": 0.4125192650210362, "ground_restitution": 1.0,
+            "initial.q": [-0.05813541780597084, -9.372692118353343e-309, 1.2235349781023913e-189,
+                          0.2539467875365583, 3.8184349427991744e-190, 1.2235349781023913e-189],
+            "initial.qd": [0.6201886401762168, 0.0, -0.0, -0.23913811301725518, 0.0, 2.442943247056e-312]}
+    scene = jackbox.load_scene(base("float"), over)
+    check_weightless_run(scene, 0.004757331632358644)
+    traj = simulate(scene, t_end=1.0, dt=0.004757331632358644)
+    _, angular, lin_scale, scale = momenta(traj, scene.params())
+    assert len(traj.impact_t) == 2 and scale > 1e6 * np.abs(angular).max()     # (the floor, not the terms)
+    assert np.abs(angular - angular[0]).max() < 1e-185                        # round-off of 1e-189 levers
 
 
 @pytest.mark.parametrize("case", list(COARSE_TURNS))
