@@ -68,6 +68,8 @@ def classify(exc: BaseException) -> str:
         return "energy gained"
     if "has gap" in text:
         return "gap below the test's floor"
+    if isinstance(exc, AssertionError) and text.startswith("('linear momentum'"):
+        return "linear momentum drift"
     if isinstance(exc, AssertionError) and text.startswith("(") and len(text.split(",")) == 4:
         return "angular momentum drift"
     return type(exc).__name__

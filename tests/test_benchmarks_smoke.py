@@ -146,6 +146,18 @@ def test_campaign_quick_mode(tmp_path):
     assert "| prescribed box" in (tmp_path / "campaign.md").read_text()
 
 
+def test_campaign_names_each_failed_check():
+    # the failures the property tests' checks raise, as benchmarks/campaign.py tables them
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("campaign", ROOT / "benchmarks" / "campaign.py")
+    campaign = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(campaign)
+    assert campaign.classify(AssertionError(("linear momentum", 3.6e-12, 3.3e-12))) == "linear momentum drift"
+    assert campaign.classify(AssertionError((0.62, 1e-12, 0, 0.007))) == "angular momentum drift"
+    assert campaign.classify(AssertionError("energy rose by 2e-8 of its scale")) == "energy gained"
+    assert campaign.classify(AssertionError()) == "AssertionError"
+
+
 def test_campaign_recheck_runs_listed_draws_again(tmp_path):
     # --recheck: the draws a file lists, run again with their family's checks (here a weightless cross
     # that the held steps' passes fixed, tests/test_stress.py's COARSE_TURNS: it must pass), and a
