@@ -812,7 +812,7 @@ def test_an_elastic_bounce_that_neither_shrinks_nor_stops_goes_to_the_fallback()
     From t = 0.69 s one tip of an elastic cross (e = 1) strikes the box's wall every
     50 us at 3e-4 m/s, 15 impacts a step of 0.5 ms, as high each time: no Zeno cascade,
     and too fast for the rest speed. 25982 events in 1 s. A run of steps with
-    DENSE_EVENTS slow approaches or more (records.DENSE_SCORE) now hands the next steps
+    DENSE_SLOW slow approaches or more (records.DENSE_SCORE) now hands the next steps
     to the fallback, whose plastic rule for slow approaches lays the tip down.
     """
     dt, over = ROCKING_ELASTIC_JACK

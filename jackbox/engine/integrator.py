@@ -74,9 +74,7 @@ def held_passes(qd, dt, n):
     for d in range(2, n, 3):
         w = max(w, abs(qd[d]))
     turn = w * abs(dt)
-    if not turn > TURN_PER_PASS:
-        return 1
-    if not math.isfinite(turn):
+    if not (turn > TURN_PER_PASS and math.isfinite(turn)):
         return 1
     k = (turn / TURN_PER_PASS) ** 1.25
     return MAX_PASSES if not k < MAX_PASSES else int(math.ceil(k))

@@ -38,7 +38,7 @@ from numba import njit
 from .impact import resolve_impacts
 from .integrator import held_passes, rk4_rows
 from .modes import held_accel, log_event, on_level, project_rest, rest_index, settle_rows
-from .records import (AF, COAST, DENSE_AT, DENSE_EVENTS, DENSE_FLOOR, DENSE_SCORE, DONE, DRIFT, EXACT_AT, FALLBACK, FLAGS, GA, GB,
+from .records import (AF, COAST, DENSE_AT, DENSE_SLOW, DENSE_FLOOR, DENSE_SCORE, DONE, DRIFT, EXACT_AT, FALLBACK, FLAGS, GA, GB,
                       HANDOFF, HANDOFF_AT, HANDOFF_DENSE, HANDOFF_EVENTS, HANDOFF_MODES, HANDOFF_STUCK, HANDOFF_ZENO,
                       IMPACT_LOG_FULL, LAM, LS, MAX_EVENTS, MISSING, MODE_AT, MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT,
                       NEED_FALLBACK, NEED_HOLD, NEED_RELEASE, NONFINITE, PASSES_AT, Q0, QB, QD0, QDB, QDS, QS, RELEASE,
@@ -584,7 +584,7 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
             # a bounce that neither shrinks nor stops: a run of dense steps that scores DENSE_SCORE hands
             # the next steps to the fallback
             slow = ws.k[FLAGS, SLOW_AT]
-            if slow < DENSE_EVENTS:
+            if slow < DENSE_SLOW:
                 rest[C + DENSE_AT] = 0
             else:
                 rest[C + DENSE_AT] += max(slow, DENSE_FLOOR)

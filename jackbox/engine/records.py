@@ -67,7 +67,7 @@ SWAP_BUDGET = 64
 #: rest speed does not end): ZENO_PASSES passes through a step that advance its time by less than
 #: ZENO_SPAN of the step also hand the step to the fallback
 ZENO_PASSES, ZENO_SPAN = 32, 1e-3
-#: a run of dense steps (each with DENSE_EVENTS approaches or more in its impacts slower than SLOW
+#: a run of dense steps (each with DENSE_SLOW approaches or more in its impacts slower than SLOW
 #: T_VREST: 1e-2 sqrt(g L), a bounce that rises less than 5e-5 L) hands the steps after it to the
 #: fallback once the sum over its steps of max(slow approaches, DENSE_FLOOR) reaches DENSE_SCORE: 32
 #: steps at the least density, 3 at 400 a step. The fallback's plastic rule for approaches slower than
@@ -79,7 +79,7 @@ ZENO_PASSES, ZENO_SPAN = 32, 1e-3
 #: elastically (70 hits a step at 1e4 L/s) has no slow approach. Each step's slow approaches are counted
 #: in ``ws.k[FLAGS, SLOW_AT]`` (the contact update adds them), the run's score in ``rest`` (DENSE_AT), so
 #: that it goes on across calls
-DENSE_EVENTS, DENSE_FLOOR, DENSE_SCORE, SLOW = 8, 32, 1024, 1e5
+DENSE_SLOW, DENSE_FLOOR, DENSE_SCORE, SLOW = 8, 32, 1024, 1e5
 #: why the exact method handed a step to the fallback, logged as the FALLBACK event's "contact" on entry
 #: (0 on leaving) and kept in ``ws.k[FLAGS, HANDOFF_AT]`` until then: an event that made no progress twice,
 #: more than MODE_BUDGET mode changes, Zeno in several contacts (ZENO_PASSES passes), MAX_EVENTS passes,
