@@ -1,7 +1,7 @@
 """Step throughput, what each skip gains, the C ceiling and ensemble scaling, in one run.
 
     jackbox bench [--scenes NAME ...] [--repeat 5] [--out DIR] [--quick] [--no-cold]
-    jackbox bench --device cuda [--repeat 3]       (the GPU's figures: jackbox.gpubench)
+    jackbox bench --device cuda [--repeat 3] [--one-go]     (the GPU's figures: jackbox.gpubench)
     python benchmarks/throughput.py ...            (the same, from a checkout)
 
 For every built-in scene (or those named), in one process and one run:
@@ -112,6 +112,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                         help="cuda: instead, the GPU's figures (member-steps/s at 1e4-1e6 members against every "
                              "CPU core, agreement with the CPU, kernel compile time), written to gpu.md/.json")
+    parser.add_argument("--one-go", action="store_true",
+                        help="with --device cuda: also each member in one go (kernel members), against rounds")
     parser.add_argument("--against", type=Path, metavar="CHECKOUT", default=None,
                         help="with --compile: measure another checkout's code side by side")
 

@@ -1,11 +1,14 @@
 """The GPU's figures: member-steps per second against every CPU core, agreement, compile time.
 
-    jackbox bench --device cuda [--repeat 3] [--quick] [--out DIR]
+    jackbox bench --device cuda [--repeat 3] [--quick] [--one-go] [--out DIR]
 
-In one run, on one machine (an NVIDIA GPU and the CPU cores beside it):
+In one run, on one machine (an NVIDIA GPU and the CPU cores beside it), each
+GPU study in rounds (:func:`jackbox.engine.gpu.run_rounds`, the default: members
+near contact packed into warps of their own) and, with ``--one-go``, also each
+member from start to end in one thread (kernel ``members``):
 
-* compile: each kernel the run needs (``members``, ``alone`` and ``flying``
-  of every built-in scene, ``twins`` of shaken) compiled in a new process
+* compile: each kernel the run needs (``alone`` and ``flying`` of every
+  built-in scene, ``members`` with ``--one-go``, ``twins`` of shaken) compiled in a new process
   (cold: NVVM and the PTX assembler; the CPU's parts are timed apart; side by
   side, one process a kernel, while the CPU's engine compiles in this one;
   a kernel already cached is compiled in a fresh cache), then loaded in
@@ -19,14 +22,12 @@ In one run, on one machine (an NVIDIA GPU and the CPU cores beside it):
   members x 10 s and ``drop`` with restitution 0.6 (contact heavy) at 1e5
   members x 3 s, on the GPU, against the CPU on all its cores (the CPU's best
   way: lanes where they apply) over fewer members (its rate does not depend on
-  n); member-steps per second of the whole study (setup, copies, run);
-* rounds: shaken at the largest n and drop e = 0.6 again with the members in
-  rounds (:func:`jackbox.engine.gpu.run_rounds`: members near contact packed
-  into warps of their own), their agreement with the CPU too;
+  n); member-steps per second of the whole study (setup, copies, run); with
+  ``--one-go``, shaken at the largest n and drop e = 0.6 again in one go;
 * divergence: drop e = 0.6 with every member the same (all threads of a warp
   take the same branches) against perturbed members (they settle at
-  different times), the same n, the perturbed ones in one go and in rounds
-  (one sample each: the slowest study of the run).
+  different times), the same n (one sample each: the slowest study of the
+  run), with ``--one-go`` the perturbed ones in one go too.
 
 Writes ``gpu.md`` and ``gpu.json`` beside ``throughput.md`` (``gpu.json`` after
 each part too, so that a run cut short keeps what it measured).
@@ -58,9 +59,13 @@ SIZES = {
 }
 DROP_OVER = {"restitution": 0.6}
 PERTURB = {"theta_jack": 1e-6}
-#: kernels compiled cold, side by side: (scene, kernel)
+#: kernels compiled cold, side by side: (scene, kernel); ``members`` with --one-go only
 KERNELS = tuple((scene, name) for scene in ("shaken", "drop", "spring") for name in ("members", "alone", "flying")) \
     + (("shaken", "twins"),)
+
+
+def kernels_for(one_go: bool) -> tuple:
+    return tuple(k for k in KERNELS if one_go or k[1] != "members")
 
 _COMPILE = """
 import json, sys, time, warnings
@@ -95,19 +100,20 @@ def run(args) -> int:
     size = SIZES["quick" if args.quick else "full"]
     out = args.out if args.out is not None else bench.default_out(args.quick)
     repeat = max(1, args.repeat)
+    one_go = bool(getattr(args, "one_go", False))
     t_start = time.perf_counter()
     result = {"jackbox": jackbox.__version__, "command": bench.command_line(), "machine": machine(),
-              "repeat": repeat, "quick": bool(args.quick), "sizes": size}
+              "repeat": repeat, "quick": bool(args.quick), "one_go": one_go, "sizes": size}
     out.mkdir(parents=True, exist_ok=True)
 
     def part(key, value):
         result[key] = value
         write_atomic(out / "gpu.json", json.dumps(result, indent=2, default=float) + "\n")
 
-    part("compile", compile_times(lambda: warm_cpu(size)))
-    part("agreement", agreement(size))
-    part("throughput", throughput(size, repeat))
-    part("divergence", divergence(size))
+    part("compile", compile_times(lambda: warm_cpu(size), kernels_for(one_go)))
+    part("agreement", agreement(size, one_go))
+    part("throughput", throughput(size, repeat, one_go))
+    part("divergence", divergence(size, one_go))
     result["wall_seconds"] = time.perf_counter() - t_start
     result["targets"] = targets(result)
     agree = result["agreement"]
@@ -163,7 +169,7 @@ def _cached_here(scene: str, name: str) -> bool:
     return gpu.is_cached(loader.kernel_for(load_scene(scene)).gpu(), name)
 
 
-def compile_times(meanwhile=None) -> dict:
+def compile_times(meanwhile=None, kernels=KERNELS) -> dict:
     """Each kernel compiled in a new process (side by side), then loaded from the cache in another (one after
     the other); ``meanwhile`` runs here while the cold ones compile.
 
@@ -175,26 +181,26 @@ def compile_times(meanwhile=None) -> dict:
 
     from . import bench
 
-    bench._say(f"compiling {len(KERNELS)} GPU kernels cold, one process each, side by side")
+    bench._say(f"compiling {len(kernels)} GPU kernels cold, one process each, side by side")
     base = dict(os.environ, PYTHONWARNINGS="ignore")
     with tempfile.TemporaryDirectory(prefix="jackbox-cold-") as fresh:
-        envs = [dict(base, NUMBA_CACHE_DIR=fresh) if _cached_here(scene, name) else base for scene, name in KERNELS]
-        procs = [_compile(scene, name, env) for (scene, name), env in zip(KERNELS, envs)]
+        envs = [dict(base, NUMBA_CACHE_DIR=fresh) if _cached_here(scene, name) else base for scene, name in kernels]
+        procs = [_compile(scene, name, env) for (scene, name), env in zip(kernels, envs)]
         if meanwhile is not None:       # (each prints one line when it ends: nothing waits on a full pipe)
             meanwhile()
         cold = [_printed(proc) for proc in procs]
     bench._say("loading them from the cache, one process after another")
-    warm = [_printed(_compile(scene, name, base)) for scene, name in KERNELS]
+    warm = [_printed(_compile(scene, name, base)) for scene, name in kernels]
     rows = [{"scene": scene, "kernel": name, "cold_seconds": c["seconds"], "cold_cache": c["cache"],
              "cold_in_fresh_cache": "NUMBA_CACHE_DIR" in e, "cold_process_before": c["before"],
              "cached_seconds": w["seconds"], "cached_cache": w["cache"],
              "cached_process_seconds": w["seconds"] + w["before"], "registers": w["registers"],
              "local_bytes": w["local_bytes"]}
-            for (scene, name), c, w, e in zip(KERNELS, cold, warm, envs)]
+            for (scene, name), c, w, e in zip(kernels, cold, warm, envs)]
     return {"kernels": rows}
 
 
-def agreement(size: dict) -> dict:
+def agreement(size: dict, one_go: bool = False) -> dict:
     """Every built-in scene on the GPU and the CPU: final states, impulse counts; shaken's FTLEs."""
     from . import bench
     from .engine import gpu
@@ -206,7 +212,7 @@ def agreement(size: dict) -> dict:
         bench._say(f"agreement: {scene}, {n} members x {t:g} s, GPU and CPU")
         over = DROP_OVER if scene == "drop" else None
         a = _study(scene, n, t, "cpu", over, perturb={"theta_jack": 0.3})
-        for rounds in (False, True):
+        for rounds in (False, True) if one_go else (True,):
             gpu.ROUNDS, saved = rounds, gpu.ROUNDS
             try:
                 b = _study(scene, n, t, "cuda", over, perturb={"theta_jack": 0.3})
@@ -227,7 +233,7 @@ def agreement(size: dict) -> dict:
 
 
 def _rates(scene: str, n: int, t: float, device: str, repeat: int, over=None, perturb=PERTURB,
-           rounds: bool = False) -> dict:
+           rounds: bool = True) -> dict:
     from .engine import gpu
 
     gpu.ROUNDS, saved = rounds, gpu.ROUNDS
@@ -250,8 +256,9 @@ def _rates_now(scene, n, t, device, repeat, over, perturb) -> dict:
             "completed": int(e.completed.sum())}
 
 
-def throughput(size: dict, repeat: int) -> dict:
-    """GPU rows at each n, CPU rows (all cores) over fewer members, the same studies."""
+def throughput(size: dict, repeat: int, one_go: bool = False) -> dict:
+    """GPU rows at each n (in rounds), CPU rows (all cores) over fewer members, the same studies; with one_go,
+    the largest GPU studies again in one go."""
     from . import bench
 
     rows = []
@@ -264,9 +271,10 @@ def throughput(size: dict, repeat: int) -> dict:
     rows.append(_rates("drop", size["drop_n"], size["drop_t"], "cuda", repeat, DROP_OVER))
     bench._say(f"throughput: drop e = 0.6, {size['cpu_drop_n']} members on the CPU x {repeat}")
     rows.append(_rates("drop", size["cpu_drop_n"], size["drop_t"], "cpu", repeat, DROP_OVER))
-    bench._say("throughput: the same GPU studies in rounds (jackbox.engine.gpu.run_rounds)")
-    rows.append(_rates("shaken", size["shaken_n"][-1], size["shaken_t"], "cuda", repeat, rounds=True))
-    rows.append(_rates("drop", size["drop_n"], size["drop_t"], "cuda", repeat, DROP_OVER, rounds=True))
+    if one_go:
+        bench._say("throughput: the same GPU studies in one go (kernel members)")
+        rows.append(_rates("shaken", size["shaken_n"][-1], size["shaken_t"], "cuda", repeat, rounds=False))
+        rows.append(_rates("drop", size["drop_n"], size["drop_t"], "cuda", repeat, DROP_OVER, rounds=False))
 
     def best(scene, device):
         return max((r for r in rows if r["scene"] == scene and r["device"] == device),
@@ -276,20 +284,22 @@ def throughput(size: dict, repeat: int) -> dict:
             "gpu_over_cpu": {scene: best(scene, "cuda") / best(scene, "cpu") for scene in ("shaken", "drop")}}
 
 
-def divergence(size: dict) -> dict:
-    """drop e = 0.6 with identical members (no divergence in a warp) against perturbed ones, the same n; the
-    perturbed ones in one go and in rounds. One sample each."""
+def divergence(size: dict, one_go: bool = False) -> dict:
+    """drop e = 0.6 with identical members (no divergence in a warp) against perturbed ones, the same n, in
+    rounds; with one_go, the perturbed ones in one go too. One sample each."""
     from . import bench
 
     n, t = size["drop_n"], size["drop_t"]
     spread = {"theta_jack": 0.3, "x_jack": 0.2}
-    bench._say(f"divergence: drop e = 0.6, {n} members on the GPU, identical, then perturbed in rounds and in one go")
+    bench._say(f"divergence: drop e = 0.6, {n} members on the GPU, identical, then perturbed")
     same = _rates("drop", n, t, "cuda", 1, DROP_OVER, perturb={})
-    rounds = _rates("drop", n, t, "cuda", 1, DROP_OVER, perturb=spread, rounds=True)
-    one_go = _rates("drop", n, t, "cuda", 1, DROP_OVER, perturb=spread)
-    return {"identical": same, "perturbed": one_go, "perturbed_rounds": rounds,
-            "cost": same["member_steps_per_second"] / one_go["member_steps_per_second"],
-            "cost_rounds": same["member_steps_per_second"] / rounds["member_steps_per_second"]}
+    rounds = _rates("drop", n, t, "cuda", 1, DROP_OVER, perturb=spread)
+    out = {"identical": same, "perturbed_rounds": rounds,
+           "cost_rounds": same["member_steps_per_second"] / rounds["member_steps_per_second"]}
+    if one_go:
+        perturbed = _rates("drop", n, t, "cuda", 1, DROP_OVER, perturb=spread, rounds=False)
+        out |= {"perturbed": perturbed, "cost": same["member_steps_per_second"] / perturbed["member_steps_per_second"]}
+    return out
 
 
 def targets(result: dict) -> list[dict]:
@@ -333,17 +343,18 @@ def markdown(result: dict) -> str:
               "|---|---|---|---|---|---|"]
     for r in result["throughput"]["rows"]:
         what = r["scene"] + (" e = 0.6" if r["over"] else "")
-        device = r["device"] + (", rounds" if r.get("rounds") else "")
+        device = r["device"] + (", one go" if r["device"] == "cuda" and not r.get("rounds") else "")
         lines.append(f"| {what} | {device} | {r['n']:,} | {r['t_end']:g} | {r['member_steps_per_second']:.3g} "
                      f"| {r['impulses_per_member']:.3g} |")
     ratio = result["throughput"]["gpu_over_cpu"]
     lines += ["", f"GPU over all CPU cores: shaken {ratio['shaken']:.0f}x, drop e = 0.6 {ratio['drop']:.0f}x.", ""]
     d = result["divergence"]
+    spread = (f"{d['perturbed']['member_steps_per_second']:.3g} in one go, " if "perturbed" in d else "") \
+        + f"{d['perturbed_rounds']['member_steps_per_second']:.3g} in rounds"
+    costs = (f"{d['cost']:.2f}x in one go, " if "cost" in d else "") + f"{d['cost_rounds']:.2f}x in rounds"
     lines += ["## Divergence (drop e = 0.6, the same n)", "",
               f"Identical members {d['identical']['member_steps_per_second']:.3g} member-steps/s, perturbed members "
-              f"{d['perturbed']['member_steps_per_second']:.3g} in one go, "
-              f"{d['perturbed_rounds']['member_steps_per_second']:.3g} in rounds: divergence costs "
-              f"{d['cost']:.2f}x in one go, {d['cost_rounds']:.2f}x in rounds.", ""]
+              f"(theta_jack +-0.3, x_jack +-0.2) {spread}: divergence costs {costs}.", ""]
     lines += ["## Agreement with the CPU", "",
               "| scene | members | s | largest state difference | same impulse counts | same status |",
               "|---|---|---|---|---|---|"]

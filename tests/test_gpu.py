@@ -46,6 +46,8 @@ from jackbox.ensemble import chaos, ensemble
 from jackbox.scene import load_scene
 
 gpu.ROUNDS = json.loads(sys.argv[2])
+# short turns of unequal lengths, so that members are cut into many rounds at different steps
+gpu.CHUNK, gpu.ALONE, gpu.EVENT_TURN, gpu.HELD_TURN = 7, 3, 1, 5
 
 def same(a, b):
     return bool(np.array_equal(a, b, equal_nan=True))
@@ -54,12 +56,18 @@ out = {}
 for name, path, over, n, t in json.loads(sys.argv[1]):
     scene = load_scene(path or name, over)
     kw = dict(perturb={"theta_jack": 0.3}, t_end=t, samples=[t / 2])
+    gpu.TRACE = [] if gpu.ROUNDS else None        # (traced: each launch synchronised and timed)
     a, b = ensemble(scene, n, **kw), ensemble(scene, n, device="cuda", **kw)
+    trace, gpu.TRACE = gpu.TRACE, None
     out[name] = {key: same(getattr(a, key), getattr(b, key))
                  for key in ("q", "qd", "energy", "impacts", "first_impact_t", "status", "steps", "fallback",
                              "warnings", "samples_q", "samples_qd")}
     out[name]["impulses"] = int(a.impacts.sum())
     out[name]["where"] = b.meta["where"]
+    if trace is not None:       # the last round finds no member running; the listed ones took the exact loop
+        out[name]["trace"] = [trace[-1]["running"], min(r["running"] for r in trace[:-1]) if len(trace) > 1 else 1,
+                              {key: sum(r[key] for r in trace) for key in ("free", "held", "event")},
+                              all(("alone_" + key in r) == (r[key] > 0) for r in trace for key in ("free", "held", "event"))]
 c = chaos("drop", 2, t_end=0.3, renorm=0.1, perturb={"theta_jack": 0.3})
 d = chaos("drop", 2, t_end=0.3, renorm=0.1, perturb={"theta_jack": 0.3}, device="cuda")
 out["chaos"] = {"stretch": same(c.stretch, d.stretch), "impacts": same(c.impacts, d.impacts),
@@ -121,6 +129,11 @@ def test_the_gpus_kernels_give_the_cpus_numbers_on_the_simulator(tmp_path, round
     out = _simulate(cases, rounds)
     for name, *_ in cases:
         assert out[name]["where"] == "GPU (numba-cuda simulator)"
+        if rounds:              # the rounds' trace (benchmarks/gpu_probe.py) changes no number
+            last, fewest, listed, timed = out[name].pop("trace")
+            assert last == 0 and fewest > 0 and timed
+            assert listed["event"] > 0 or name != "drop", listed        # each list taken
+            assert listed["held"] > 0 or name != "settle", listed
         differ = [key for key, equal in out[name].items() if equal is False]
         assert not differ, f"{name}: the GPU's {', '.join(differ)} differ from the CPU's"
     assert out["drop"]["impulses"] > 0 and out["settle"]["impulses"] > 0          # the contact path ran

@@ -32,6 +32,7 @@ import hashlib
 import importlib.util
 import os
 import sys
+import time
 import types as pytypes
 from collections import namedtuple
 from pathlib import Path
@@ -219,13 +220,25 @@ def lanes_none(t0, dt, i, i_stop, S, p, tol, live, quiet):
 #: exact loop: they wait no longer than this), and takes in the exact loop while held; steps a member near
 #: contact takes through the exact loop before it flies again (an approach, its impacts and the departure).
 #: Kernel arguments, read at each launch (benchmarks/gpu_probe.py tries others)
-CHUNK, ALONE = 256, 16
+CHUNK, ALONE = 256, 4
+#: steps a held member (or one in the fallback) takes through the exact loop in a turn, and a member
+#: whose next step likely has an event (a gap below zero at its end): kernel arguments too. On an H100
+#: (benchmarks/results/gpu_probe.json, one sample each) drop e = 0.6 (1e5 members x 3 s) ran at 1.32e8
+#: member-steps/s with these four against 8.0e7 with EVENT_TURN = ALONE = 16, HELD_TURN = 256 (9.8e7 with
+#: 1, 1, 16); shaken (1e6 x 10 s) at 1.89e9 against 1.86e9 (its steps in the exact loop are dear, not
+#: for divergence alone: 1.72e9 with turns of one step)
+HELD_TURN, EVENT_TURN = 32, 1
+#: a list to append one row a round to (what each launch took and how many members it ran;
+#: benchmarks/gpu_probe.py), or None. Tracing synchronises after every launch, so it is for diagnosis only
+TRACE = None
 #: columns of a member's row of integers: step reached, status, next sample
 AT_STEP, AT_STATUS, AT_SAMPLE = 0, 1, 2
 #: what member_fly says of a member: finished (or stopped), flown (quiet to the round's end or its sample),
-#: in want of the exact loop near contact, or held in a contact (the two take it in warps of their own: a
-#: held member's turn is CHUNK steps, a free one's ALONE)
-FINISHED, FLOWN, NEEDS_CARE, HELD = 0, 1, 2, 3
+#: in want of the exact loop near contact, held in a contact, or with an event in its next step (the
+#: three take it in warps of their own, so that the threads of a warp take the same branches: an event's
+#: location and impact cost many quiet steps, and a warp whose members meet their events at different
+#: steps pays for each of them)
+FINISHED, FLOWN, NEEDS_CARE, HELD, EVENT = 0, 1, 2, 3, 4
 
 
 def next_stop(state, sample_steps, n_steps):
@@ -270,8 +283,9 @@ def member_fly(model, q, qd, rest, p, tol, tally, state, dt, n_steps, sample_ste
                qb, qdb, out, box, gaps, chunk):
     """One round of a member in free flight: the model's ``fly`` from the smallest gap (``gaps``: scratch of
     a row a contact), as the exact loop goes on after a step of its own, so that a member a turn has taken
-    away from a wall flies again at once. Returns FINISHED, FLOWN, NEEDS_CARE (a step that is not quiet)
-    or HELD (a held contact)."""
+    away from a wall flies again at once. Returns FINISHED, FLOWN, NEEDS_CARE (a step that is not quiet),
+    EVENT (a step that is not quiet with a gap below zero at its end: the trial's gaps, computed here, sort
+    the member only) or HELD (a held contact)."""
     i = state[AT_STEP]
     if state[AT_STATUS] != DONE or i >= n_steps:
         return FINISHED
@@ -287,7 +301,10 @@ def member_fly(model, q, qd, rest, p, tol, tally, state, dt, n_steps, sample_ste
     if i == stop:
         arrive(model, i * dt, q, qd, p, state, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, out, box)
         settle(state, tally, dt, fin)
-    return FLOWN if i == end else NEEDS_CARE
+    if i == end:
+        return FLOWN
+    model.phi((i + 1) * dt, qb, p, gaps)
+    return EVENT if not lowest_free(gaps, rest, model.n_contact) >= 0.0 else NEEDS_CARE
 
 
 def member_alone(model, exact, stages, q, qd, rest, p, tol, tally, state, dt, n_steps, sample_steps, samp_q,
@@ -406,8 +423,9 @@ def alone(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, 
 def flying(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, LIST,
            COUNT, chunk):
     """A round of free flight for every member; those that need the exact loop are listed, the free ones
-    from LIST's start (COUNT[0] of them), the held ones from its end (COUNT[2]); those still running are
-    counted (COUNT[1])."""
+    from LIST's start (COUNT[0] of them), the held ones back from the end of its first half (COUNT[2]), those
+    with an event in their next step from its second half on (COUNT[3]); those still running are counted
+    (COUNT[1])."""
     j = _cuda.grid(1)
     if j >= Q.shape[0]:
         return
@@ -423,6 +441,8 @@ def flying(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q,
             LIST[_cuda.atomic.add(COUNT, 0, 1)] = j
         elif how == {HELD}:
             LIST[Q.shape[0] - 1 - _cuda.atomic.add(COUNT, 2, 1)] = j
+        elif how == {EVENT}:
+            LIST[Q.shape[0] + _cuda.atomic.add(COUNT, 3, 1)] = j
 
 
 @_cuda.jit(cache=True)
@@ -457,7 +477,7 @@ def kernel_text(model_text: str, flight_text: str, constants: dict) -> str:
     for key, value in {**constants, "FUNCTIONS": functions, "SC": SC, "SN": SN, "SK": SK, "MODE_SLOTS": MODE_SLOTS,
                        "ROW": constants["N_DOF"] + ROW_EXTRA,
                        "LOG_SIZE": LOG_SIZE, "TALLY": TALLY, "FINISHED": FINISHED, "NEEDS_CARE": NEEDS_CARE,
-                       "HELD": HELD}.items():
+                       "HELD": HELD, "EVENT": EVENT}.items():
         filled = filled.replace("{" + key + "}", str(value))
     return model_text + "\n\n" + flight_text + filled
 
@@ -609,9 +629,11 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
     In rounds, so that a member near contact does not hold up the 31 others
     of its warp: every member flies while it is quiet (kernel ``fly``, at most
     CHUNK steps), then the members that need the exact loop take it, listed
-    and packed into warps of their own (kernel ``alone``): those near contact
-    for ALONE steps, then those held in a contact for CHUNK steps, each list in
-    a launch of its own so that a warp's members take turns of one length. A member's numbers are those of one
+    and packed into warps of their own (kernel ``alone``): those with an
+    event in their next step for EVENT_TURN steps, those near contact for
+    ALONE steps, those held in a contact for HELD_TURN steps, each list in a
+    launch of its own so that a warp's members take the same branches and
+    turns of one length. A member's numbers are those of one
     call of the exact loop from its start (:func:`member_fly` starts ``fly``
     as the exact loop starts a call); the rounds end when every member has.
     """
@@ -626,23 +648,39 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
     STATE = cuda.to_device(np.zeros((n, 3), np.int64), stream=stream)
     steps = cuda.to_device(np.ascontiguousarray(sample_steps, np.int64), stream=stream)
     outs = [cuda.to_device(a, stream=stream) for a in (samp_q, samp_qd, fin_q, fin_qd, fin)]
-    LIST = cuda.to_device(np.zeros(n, np.int64), stream=stream)
-    count, zero = np.zeros(3, np.int64), np.zeros(3, np.int64)
+    LIST = cuda.to_device(np.zeros(2 * n, np.int64), stream=stream)
+    count, zero = np.zeros(4, np.int64), np.zeros(4, np.int64)
     COUNT = cuda.to_device(count, stream=stream)
     args = (*dev, REST, TALLY_, STATE, float(dt), int(n_steps), steps, *outs, LIST)
     grid = (n + BLOCK - 1) // BLOCK
-    kernels.alone[grid, BLOCK, stream](*args, 0, -1, CHUNK, ALONE)
+    trace, clock = TRACE, time.perf_counter
+    t0 = clock()
+    kernels.alone[grid, BLOCK, stream](*args, 0, -1, HELD_TURN, ALONE)
     while True:
         COUNT.copy_to_device(zero, stream=stream)
+        if trace is not None:
+            stream.synchronize()
+            t1 = clock()
+            row = {"start": t1 - t0}
         kernels.flying[grid, BLOCK, stream](*args, COUNT, CHUNK)
         COUNT.copy_to_host(count, stream=stream)
         stream.synchronize()
+        if trace is not None:
+            t0 = clock()
+            row.update(fly=t0 - t1, running=int(count[1]), free=int(count[0]), held=int(count[2]),
+                       event=int(count[3]))
+            trace.append(row)
         if count[1] == 0:
             break
-        free, held = int(count[0]), int(count[2])
-        for first, listed in ((0, free), (n - held, held)):
+        free, held, event = int(count[0]), int(count[2]), int(count[3])
+        for first, listed, turn, key in ((n, event, EVENT_TURN, "alone_event"), (0, free, ALONE, "alone_free"),
+                                         (n - held, held, ALONE, "alone_held")):
             if listed > 0:
-                kernels.alone[(listed + BLOCK - 1) // BLOCK, BLOCK, stream](*args, first, listed, CHUNK, ALONE)
+                kernels.alone[(listed + BLOCK - 1) // BLOCK, BLOCK, stream](*args, first, listed, HELD_TURN, turn)
+                if trace is not None:
+                    stream.synchronize()
+                    t1, t0 = t0, clock()
+                    row[key] = t0 - t1
     for host, out in zip((samp_q, samp_qd, fin_q, fin_qd, fin), outs):
         out.copy_to_host(host, stream=stream)
     stream.synchronize()
