@@ -536,7 +536,7 @@ def _signatures():
 
 #: how an ensemble runs: False, each member from start to end in one thread (kernel ``members``); True,
 #: in rounds (kernels ``flying`` and ``alone``, :func:`run_rounds`), so that members near contact do not
-#: hold up the others of their warp. On an H200 (benchmarks/results/gpu.md) rounds ran shaken (1e6 members
+#: hold up the others of their warp. On an H200 at f1430e9 (the README's history) rounds ran shaken (1e6 members
 #: x 10 s) at 1.42e9 member-steps/s against 9.9e8 in one go, drop e = 0.6 (1e5 x 3 s) at 4.4e7 against
 #: 1.76e7, with the same numbers (the same impulse counts; states within 1e-12 of the CPU's either way)
 ROUNDS = True
