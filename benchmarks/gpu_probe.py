@@ -51,7 +51,7 @@ def rate(study, rounds=True, block=64, chunk=256, alone=16, traced=False, pertur
                    device="cuda")
     gpu.EVENT_TURN, gpu.HELD_TURN = before
     row = {"scene": name, "n": n, "t_end": t, "perturbed": perturb, "rounds": rounds, "block": block, "chunk": chunk,
-           "alone": alone, "event_turn": event, "held_turn": held,
+           "alone": alone, "event_turn": event, "held_turn": held, "calm": gpu.CALM,
            "member_steps_per_second": e.meta["member_steps_per_second"],
            "seconds": time.perf_counter() - t0, "impulses_per_member": float(e.impacts.mean()),
            "completed": int(e.completed.sum())}
@@ -109,7 +109,7 @@ def agree(name, over, n=1000, t=1.0) -> dict:
     gpu.EVENT_TURN, gpu.ALONE, gpu.HELD_TURN = 1, 1, 16
     kw = dict(t_end=t, perturb={"theta_jack": 1e-6})
     a, b = E.ensemble(load_scene(name, over), n, **kw), E.ensemble(load_scene(name, over), n, device="cuda", **kw)
-    row = {"agree": name, "n": n, "t_end": t, "event_turn": 1, "alone": 1, "held_turn": 16,
+    row = {"agree": name, "n": n, "t_end": t, "event_turn": 1, "alone": 1, "held_turn": 16, "calm": gpu.CALM,
            "max_state_difference": float(max(abs(a.q - b.q).max(), abs(a.qd - b.qd).max())),
            "same_impulses": bool((a.impacts == b.impacts).all()), "same_status": bool((a.status == b.status).all())}
     print(json.dumps(row), flush=True)

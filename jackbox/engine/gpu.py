@@ -228,6 +228,10 @@ CHUNK, ALONE = 256, 4
 #: 1, 1, 16); shaken (1e6 x 10 s) at 1.89e9 against 1.86e9 (its steps in the exact loop are dear, not
 #: for divergence alone: 1.72e9 with turns of one step)
 HELD_TURN, EVENT_TURN = 32, 1
+#: whether a round's flight takes the steps that are not quiet but calm (the exact loop would find no event
+#: in them) itself, as an ensemble block's lanes do on the CPU, instead of listing the member for ``alone``;
+#: a kernel argument. Models without lanes (a prescribed box) have no calm test: their flights stop there
+CALM = True
 #: a list to append one row a round to (what each launch took and how many members it ran;
 #: benchmarks/gpu_probe.py), or None. Tracing synchronises after every launch, so it is for diagnosis only
 TRACE = None
@@ -279,11 +283,13 @@ def member_start(model, exact, stages, q, qd, rest, p, tol, tally, state, dt, n_
     settle(state, tally, dt, fin)
 
 
-def member_fly(model, q, qd, rest, p, tol, tally, state, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin,
-               qb, qdb, out, box, gaps, chunk):
+def member_fly(model, calm, q, qd, rest, p, tol, tally, state, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q,
+               fin_qd, fin, qb, qdb, out, box, gaps, ext, chunk, go_calm):
     """One round of a member in free flight: the model's ``fly`` from the smallest gap (``gaps``: scratch of
     a row a contact), as the exact loop goes on after a step of its own, so that a member a turn has taken
-    away from a wall flies again at once. Returns FINISHED, FLOWN, NEEDS_CARE (a step that is not quiet),
+    away from a wall flies again at once. With go_calm, a step that is not quiet but calm (the lanes'
+    :func:`~.lanes.calm`: the exact loop's own test finds no event in it, so it would take the trial) is
+    taken here and the flight goes on. Returns FINISHED, FLOWN, NEEDS_CARE (a step that is not quiet),
     EVENT (a step that is not quiet with a gap below zero at its end: the trial's gaps, computed here, sort
     the member only) or HELD (a held contact)."""
     i = state[AT_STEP]
@@ -295,8 +301,19 @@ def member_fly(model, q, qd, rest, p, tol, tally, state, dt, n_steps, sample_ste
     end = min(stop, i + chunk)
     never = np.int64(-1)        # (the member's samples are its own: arrive)
     model.phi(i * dt, q, p, gaps)
-    i, _, _ = model.fly(0.0, dt, i, end, q, qd, p, tol, lowest_free(gaps, rest, model.n_contact), qb, qdb, out.t,
-                        out.q, out.qd, np.int64(0), never, np.int64(1), never)
+    clear = lowest_free(gaps, rest, model.n_contact)
+    while True:
+        i, _, _ = model.fly(0.0, dt, i, end, q, qd, p, tol, clear, qb, qdb, out.t, out.q, out.qd, np.int64(0), never,
+                            np.int64(1), never)
+        if i == end or go_calm == 0:
+            break
+        quiet, clear = calm(i * dt, (i + 1) * dt, q, qd, qb, qdb, p, tol, ext)
+        if not quiet:
+            break
+        for d in range(model.n_dof):
+            q[d] = qb[d]
+            qd[d] = qdb[d]
+        i += 1
     state[AT_STEP] = i
     if i == stop:
         arrive(model, i * dt, q, qd, p, state, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, out, box)
@@ -421,7 +438,7 @@ def alone(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, 
 
 @_cuda.jit(cache=True)
 def flying(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, LIST,
-           COUNT, chunk):
+           COUNT, chunk, go_calm):
     """A round of free flight for every member; those that need the exact loop are listed, the free ones
     from LIST's start (COUNT[0] of them), the held ones back from the end of its first half (COUNT[2]), those
     with an event in their next step from its second half on (COUNT[3]); those still running are counted
@@ -430,9 +447,10 @@ def flying(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q,
     if j >= Q.shape[0]:
         return
     q, qd, p, tol = _rows(Q, QD, P, TOL, j)
-    how = _gpu_fly(_model(), q, qd, REST[j], p, tol, TALLY[j], STATE[j], dt, n_steps, sample_steps, samp_q[j], samp_qd[j],
-                   fin_q[j], fin_qd[j], fin[j], _cuda.local.array(_N, _f8), _cuda.local.array(_N, _f8), _samples(),
-                   _cuda.local.array(6, _f8), _cuda.local.array(_C, _f8), chunk)
+    how = _gpu_fly(_model(), calm, q, qd, REST[j], p, tol, TALLY[j], STATE[j], dt, n_steps, sample_steps, samp_q[j],
+                   samp_qd[j], fin_q[j], fin_qd[j], fin[j], _cuda.local.array(_N, _f8), _cuda.local.array(_N, _f8),
+                   _samples(), _cuda.local.array(6, _f8), _cuda.local.array(_C, _f8), _cuda.local.array(2, _f8), chunk,
+                   go_calm)
     if how != {FINISHED}:
         _copy(Q[j], q)
         _copy(QD[j], qd)
@@ -469,9 +487,31 @@ def stage_devices():
     return tuple(out)
 
 
+#: a model without lanes (a prescribed box) has no calm test in its kernel file: no step is calm
+CALM_STUB = """
+
+def calm(t, t_next, q, qd, qn, vn, p, tol, ext):
+    return False, 0.0
+"""
+
+
+def calm_text(model_text: str) -> str:
+    """The lanes' :func:`~.lanes.calm` (with ``finite`` and the imports of its module) for a model with lanes."""
+    import ast
+
+    from ..loader import LANES_SOURCE, has_lanes
+    if not has_lanes(model_text):
+        return CALM_STUB
+    source = LANES_SOURCE.read_text()
+    kept = [ast.get_source_segment(source, node) for node in ast.parse(source).body
+            if isinstance(node, (ast.Import, ast.ImportFrom))
+            or (isinstance(node, ast.FunctionDef) and node.name in ("finite", "calm"))]
+    return "\n\n" + "\n\n\n".join(kept) + "\n"
+
+
 def kernel_text(model_text: str, flight_text: str, constants: dict) -> str:
     """The text of a model's kernel file (see :data:`KERNELS`): the model's text (with the loader's stubs for
-    what it lacks), the hot path's, the kernels."""
+    what it lacks), the hot path's, the lanes' calm test, the kernels."""
     functions = ", ".join(name for name in SIGNATURES if name != "lanes")
     filled = KERNELS
     for key, value in {**constants, "FUNCTIONS": functions, "SC": SC, "SN": SN, "SK": SK, "MODE_SLOTS": MODE_SLOTS,
@@ -479,7 +519,7 @@ def kernel_text(model_text: str, flight_text: str, constants: dict) -> str:
                        "LOG_SIZE": LOG_SIZE, "TALLY": TALLY, "FINISHED": FINISHED, "NEEDS_CARE": NEEDS_CARE,
                        "HELD": HELD, "EVENT": EVENT}.items():
         filled = filled.replace("{" + key + "}", str(value))
-    return model_text + "\n\n" + flight_text + filled
+    return model_text + "\n\n" + flight_text + calm_text(model_text) + filled
 
 
 def kernel_constants(module) -> dict:
@@ -531,7 +571,7 @@ def _signatures():
     I1, I2 = types.Array(i8, 1, "C"), types.Array(i8, 2, "C")
     rounds = (V2, V2, V2, V2, I2, V2, I2, f8, i8, I1, V3, V3, V2, V2, V2, I1)
     return {"members": (V2, V2, V2, V2, f8, i8, I1, V3, V3, V2, V2, V2), "alone": rounds + (i8, i8, i8, i8),
-            "flying": rounds + (I1, i8), "twins": (V2, V2, V2, V2, V2, V2, f8, i8, i8, V1, V2, V2)}
+            "flying": rounds + (I1, i8, i8), "twins": (V2, V2, V2, V2, V2, V2, f8, i8, i8, V1, V2, V2)}
 
 
 #: how an ensemble runs: False, each member from start to end in one thread (kernel ``members``); True,
@@ -662,7 +702,7 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
             stream.synchronize()
             t1 = clock()
             row = {"start": t1 - t0}
-        kernels.flying[grid, BLOCK, stream](*args, COUNT, CHUNK)
+        kernels.flying[grid, BLOCK, stream](*args, COUNT, CHUNK, int(CALM))
         COUNT.copy_to_host(count, stream=stream)
         stream.synchronize()
         if trace is not None:
