@@ -48,6 +48,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -345,6 +346,23 @@ def check_energy(traj, scene, elastic=False):
             f"t = {traj.t[i + 1]:.9g} s with {n_imp[i]} impulses (elastic: {elastic})")
 
 
+def momentum_rounding(traj, P):
+    """The most that rounding each body's velocity at each step where one changes can move the linear momentum.
+
+    A step that changes a velocity rounds it to half an ulp, for each body:
+    at most EPS times the bodies' momentum a step, of either sign. Where a
+    force acts for most steps (a light jack pressed by a heavy box) those
+    roundings add up past 1e-13 of the momentum exchanged: a weightless square
+    with a jack 1e4 times lighter than its box, a contact changing its
+    velocities in 1986 of 2000 steps, drifted by 3.6e-12, 0.17 of this bound,
+    every step's change within 1 ulp (``test_a_light_jack_pressed_for_most_steps_keeps_its_momentum``).
+    """
+    qd = traj.qd
+    moved = np.any(np.diff(qd, axis=0) != 0.0, axis=1)
+    scale = P["m_box"] * np.abs(qd[1:, :2]).sum(axis=1) + P["m_jack"] * np.abs(qd[1:, 3:5]).sum(axis=1)
+    return EPS * float((scale * moved).sum())
+
+
 def momenta(traj, P):
     """Linear (N, 2) and angular (N,) momentum about the origin, and their scales."""
     mb, mj, Jb, Jj = P["m_box"], P["m_jack"], P["J_box"], P["J_jack"]
@@ -464,7 +482,9 @@ def test_random_weightless_scenes_keep_momentum(shape, structure, data):
 
     Impulses and contact forces act on both bodies at one point, equal and
     opposite. Linear momentum is a linear invariant, which RK4 keeps exactly:
-    only round-off remains, relative to the momentum exchanged (1e-13 of it).
+    only round-off remains, relative to the momentum exchanged (1e-13 of it),
+    plus each step's rounding of the bodies' momenta where their velocities
+    change (:func:`momentum_rounding`).
     Angular momentum is quadratic: kept to round-off (ANGULAR of its scale) in
     free flight and by impulses, and to RK4's error, (omega dt)^5 per step but
     no more than ANGULAR_REST_CAP, while a contact is persistent (a constrained,
@@ -486,7 +506,8 @@ def check_weightless_run(scene, dt):
     # a persistent contact (a force all along) can exchange far more momentum than there is
     exchanged = lin_scale + np.abs(np.diff(P["m_jack"] * traj.qd[:, 3:5], axis=0)).sum()
     drift = np.abs(linear - linear[0]).max()
-    assert drift <= 1e-13 * exchanged, ("linear momentum", drift, 1e-13 * exchanged)
+    allowed = 1e-13 * exchanged + momentum_rounding(traj, P)
+    assert drift <= allowed, ("linear momentum", drift, allowed)
     n_rest = np.count_nonzero(resting_steps(traj) | fallback_steps(traj))
     allowed = ANGULAR + n_rest * min(omega_dt(traj, P) ** 5, ANGULAR_REST_CAP)
     drift = np.abs(angular - angular[0]).max() / ang_scale
@@ -626,6 +647,54 @@ TURNING_PAIR = (0.009999769744141627, {
                   0.2333666025323359, -1.6659685211489226],
     "initial.qd": [1.0489039296771125e-199, 0.002583251731581964, 3.554801484199404e-33, -9.904544411531509e-07,
                    -3.5261582924647967e-69, 0.502292751349494]})
+
+
+#: a draw of test_random_weightless_scenes_keep_momentum (square; campaign seed 7): a jack 1e4 times lighter than
+#: its box, a contact changing the velocities in 1986 of 2000 steps
+LIGHT_PRESSED_JACK = (0.0004999999999999999, {
+    "box.inner_half_width": 1.0, "box.wall_thickness": 0.02519716488938408, "box.mass": 0.9999997255105045,
+    "jack.mass": 9.999997255105045e-05, "jack.half_size": 0.3333333333333333, "gravity": 0.0,
+    "restitution": 6.456330508197041e-121, "ground_restitution": 1.0,
+    "initial.q": [-1e-05, -0.27614280736652075, -1.6714213085157474, -0.05862687718856346, 0.32429735851263186,
+                  -1.6714213085157474],
+    "initial.qd": [15.466391661031697, -33.03309747886226, 1.7540574212088553e-230, -43.73110916687199,
+                   -6.501909264974962e-44, 60.03508660697581]})
+
+
+def test_a_light_jack_pressed_for_most_steps_keeps_its_momentum():
+    """The draw failed by 3.6e-12 against 1e-13 of the momentum exchanged (3.3e-12): no step moved the
+    momentum by more than 1 ulp; the drift is the sum of the velocities' roundings, one a step, which
+    the check now allows (:func:`momentum_rounding`: drift 0.17 of it). A wrong impulse is not round-off:
+    one on the jack alone would move the momentum by about the jack's, 7e-3, some 3e8 times this bound."""
+    dt, over = LIGHT_PRESSED_JACK
+    scene = jackbox.load_scene(base("float"), over)
+    check_weightless_run(scene, dt)
+    traj = simulate(scene, t_end=1.0, dt=dt)
+    P = scene.params()
+    linear = momenta(traj, P)[0]
+    assert 0.1 * momentum_rounding(traj, P) < np.abs(linear - linear[0]).max()     # the case it was kept for
+
+
+#: a draw of test_random_drops_never_penetrate_nor_gain_energy (campaign seed 8): a jack 5000 times as heavy
+#: as its box, nearly as wide, striking with 11 contacts in the impact's LCP
+ELEVEN_CONTACTS = (0.00695363207725997, {
+    "box.inner_half_width": 0.9657106906685986, "box.wall_thickness": 0.42032712679684847,
+    "box.mass": 0.8615348968752946, "jack.mass": 4596.54242631265, "jack.half_size": 0.614790520066383,
+    "gravity": 9.81, "restitution": 0.44939993492664077, "ground_restitution": 0.44939993492664077,
+    "initial.q": [-0.3084671175952448, 2.1418308889697197, -2.0452202281387653, -0.26760432441388776,
+                  2.2214010988069703, -2.0452202281387653],
+    "initial.qd": [31.140000459501213, 36.11980073072688, 17.395494324269976, 32.62648725320051,
+                   -24.628100961483902, 38.74225536724814]})
+
+
+def test_a_heavy_jack_striking_with_eleven_contacts_stays_out_of_the_walls():
+    """The impact's LCP had 11 contacts of rank 5: Gauss-Seidel stopped unconverged after 20000 sweeps
+    (a SolverWarning) and the jack ended 5.5e-8 L inside a wall. Sets larger than MAX_ENUMERATED are now
+    enumerated up to the coordinates' count (impact.lcp): no warning, every check passes."""
+    dt, over = ELEVEN_CONTACTS
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_drop_run(jackbox.load_scene(base("drop"), over), dt)
 
 
 def test_a_held_pair_turning_fast_gains_no_energy():
