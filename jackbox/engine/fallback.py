@@ -40,9 +40,17 @@ from .impact import contact_matrix, lcp, solve_lcp
 from .modes import add_response, log_event, project_rest, rest_index
 from .records import (ACC, AF, CAND, FALLBACK, GS, HIT, LAM, LAMB, MODE_AT, NEAR, QDS, QS, RHS, RIDX, SET_AT,
                       STABLE_STEPS, T_EVENT, T_GAP, T_VREST, VA, VB, VT, WINV)
+from .tolerances import GAP_TOL
 
 #: Newton passes of the position projection (each a position LCP)
 PROJECTION_PASSES = 4
+#: a step whose own motion would close a gap by more than this many L (the box's half-width) in half its
+#: length is not one the fallback resolves (forces or masses far beyond what a step of dt can follow: at
+#: g = 1e20 a step falls 1e14 L). Every contact is then within reach, and the velocity LCP over all of them
+#: held the box hovering where it started, its energy rising, and the run ended done. The state is made
+#: NaN instead: the run stops there with the status NONFINITE ("the state became non-finite ... try a
+#: smaller dt or check the forces"). The hardest random scenes' steps close about 1 L
+UNRESOLVED_REACH = 1e3
 #: Gauss-Seidel sweeps for the projection that keeps the angular momentum, when its matrix is too
 #: degenerate to enumerate (:func:`project_gaps`); beyond them the plain projection is taken
 KEPT_SWEEPS = 200
@@ -70,8 +78,15 @@ def moreau_step(model, t, h, q, qd, p, tol, ws):
     model.gap_rate(tm, qm, qd, p, v0)
     model.gap_rate(tm, qm, uf, p, vf)
     rows, member = ws.k[HIT], ws.k[CAND]
+    far = 0.0
     for k in range(C):
         member[k] = g[k] + 0.5 * h * min(vf[k], v0[k], 0.0) < tol[T_GAP]
+        far = max(far, -0.5 * h * min(vf[k], v0[k], 0.0))
+    if far > UNRESOLVED_REACH * tol[T_GAP] / GAP_TOL:       # (see UNRESOLVED_REACH)
+        for d in range(n):
+            q[d] = np.nan
+            qd[d] = np.nan
+        return 0
     jac, A, winv = ws.jac, ws.A, ws.n[WINV]
     model.inverse_mass(p, winv)
     b, lam = ws.c[RHS], ws.c[LAM]
