@@ -39,17 +39,15 @@ DROP = ("drop", {"restitution": "0.6"}, 100_000, 3.0)
 ALIKE = ("shaken", {}, 100_000, 10.0)
 
 
-def rate(study, rounds=True, block=64, chunk=256, alone=16, traced=False, perturb=True, event=None,
-         held=None) -> dict:
+def rate(study, rounds=True, block=gpu.BLOCK, chunk=gpu.CHUNK, alone=gpu.ALONE, traced=False, perturb=True,
+         event=gpu.EVENT_TURN, held=gpu.HELD_TURN) -> dict:
+    """One study's rate with these settings (each call sets all of them; the defaults are jackbox's)."""
     name, over, n, t = study
-    event, held = gpu.EVENT_TURN if event is None else event, gpu.HELD_TURN if held is None else held
-    before = gpu.EVENT_TURN, gpu.HELD_TURN
     gpu.ROUNDS, gpu.BLOCK, gpu.CHUNK, gpu.ALONE, gpu.EVENT_TURN, gpu.HELD_TURN = rounds, block, chunk, alone, event, held
     gpu.TRACE = [] if traced else None
     t0 = time.perf_counter()
     e = E.ensemble(load_scene(name, over), n, t_end=t, perturb={"theta_jack": 1e-6} if perturb else None,
                    device="cuda")
-    gpu.EVENT_TURN, gpu.HELD_TURN = before
     row = {"scene": name, "n": n, "t_end": t, "perturbed": perturb, "rounds": rounds, "block": block, "chunk": chunk,
            "alone": alone, "event_turn": event, "held_turn": held, "calm": gpu.CALM,
            "member_steps_per_second": e.meta["member_steps_per_second"],

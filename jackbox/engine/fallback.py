@@ -146,6 +146,13 @@ def moreau_step(model, t, h, q, qd, p, tol, ws):
 
 
 @njit(cache=True, no_cpython_wrapper=True)
+def centre_of_mass_velocity(qd, winv):
+    """The box's and the jack's masses and their centre of mass's velocity (a free box; winv filled)."""
+    mb, mj = 1.0 / winv[0], 1.0 / winv[3]
+    return mb, mj, (mb * qd[0] + mj * qd[3]) / (mb + mj), (mb * qd[1] + mj * qd[4]) / (mb + mj)
+
+
+@njit(cache=True, no_cpython_wrapper=True)
 def angular_momentum(model, q, qd, winv):
     """The pair's angular momentum about the origin (a free box: six coordinates; winv filled); 0 otherwise."""
     if model.prescribed or model.n_dof != 6:
@@ -172,10 +179,8 @@ def keep_angular_momentum(model, t, q, qd, p, before, winv):
     if model.has_ground or model.prescribed or model.n_dof != 6:
         return
     drift = angular_momentum(model, q, qd, winv) - before
-    mb, mj = 1.0 / winv[0], 1.0 / winv[3]
+    mb, mj, vx, vy = centre_of_mass_velocity(qd, winv)
     mass = mb + mj
-    vx = (mb * qd[0] + mj * qd[3]) / mass
-    vy = (mb * qd[1] + mj * qd[4]) / mass
     speed2 = vx * vx + vy * vy
     if not (speed2 > 0.0 and drift != 0.0):
         return
@@ -209,9 +214,7 @@ def pay_from_motion(model, t, q, qd, p, before, winv):
     rise = model.energy(t, q, qd, p) - before
     if not rise > 0.0:
         return
-    mb, mj = 1.0 / winv[0], 1.0 / winv[3]
-    vx = (mb * qd[0] + mj * qd[3]) / (mb + mj)
-    vy = (mb * qd[1] + mj * qd[4]) / (mb + mj)
+    mb, mj, vx, vy = centre_of_mass_velocity(qd, winv)
     about = 0.5 * (mb * ((qd[0] - vx) ** 2 + (qd[1] - vy) ** 2) + qd[2] ** 2 / winv[2]
                    + mj * ((qd[3] - vx) ** 2 + (qd[4] - vy) ** 2) + qd[5] ** 2 / winv[5])
     s = math.sqrt(1.0 - rise / about) if rise < about else 0.0
