@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import jackbox
+from jackbox.engine.records import DRIFT
 from jackbox.scene import contact_gaps
 
 from .conftest import write_scene
@@ -272,6 +273,30 @@ def test_a_jack_resting_in_a_box_carried_at_constant_speed_coasts_with_it(tmp_pa
     gaps = jack_gaps(traj, scene)
     assert np.abs(gaps[:, [14, 15]] + HELD).max() < 1e-15        # bottom:2, bottom:3 on the held level
 
+
+
+def test_a_jack_on_a_floor_that_starts_to_rise_stops_coasting_when_it_does(tmp_path):
+    # the box is lifted by y = c t^4: its acceleration, 12 c t^2, is below what a held
+    # step takes for none (it coasts) until about 0.3 s and grows past it after, while
+    # the jack rests on its floor and slides along it at 0.3 m/s. Stretches of steps that
+    # coast are looked at at their ends only, so one that began coasting and ends
+    # lifted must be stepped again: the jack follows the floor at every sample (a
+    # stretch kept to t = 2 s would leave it 1.6e-11 m below), and slides on uniformly
+    c, v = 1e-12, 0.3
+    text = STILL.replace('name = "still"', 'name = "lifted"').replace('y = "A*(1 - cos(w*t))"', f'y = "{c}*t**4"')
+    scene = jackbox.load_scene(write_scene(tmp_path, text))
+    y_rest = -L + A_JACK - HELD
+    scene = jackbox.load_scene(scene, {"initial.q": [0, 0, 0, 0.0, y_rest, 0.0], "initial.qd": [0, 0, 0, v, 0, 0]})
+    for record_every in (1, 1000):      # samples inside the stretches, and none but the ends
+        traj = jackbox.simulate(scene, t_end=2.0, record_every=record_every)
+        assert len(traj.impact_t) == 0 and list(traj.contact_changes["event"]) == ["rest", "rest"]
+        y_box = c * traj.t ** 4
+        assert y_box[-1] > 1e4 * 1e-15
+        np.testing.assert_allclose(traj.q[:, 4] - y_box, y_rest, rtol=0, atol=1e-15)
+        # (a held row's rate is left where it moves the gap by less than round-off in a step)
+        np.testing.assert_allclose(traj.qd[:, 4], 4 * c * traj.t ** 3, rtol=0, atol=DRIFT * HELD / 0.5e-3)
+        np.testing.assert_allclose(traj.q[:, 3], v * traj.t, rtol=0, atol=1e-14)
+        assert np.abs(traj.q[:, 5]).max() < 1e-15
 
 def test_inelastic_drop_settles_with_the_box_resting_on_the_ground():
     # drop with e = 0.6: the box rocks on its corners, the bounces accumulate

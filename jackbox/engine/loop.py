@@ -48,6 +48,11 @@ from .records import (AF, COAST, DENSE_AT, DENSE_SLOW, DENSE_FLOOR, DENSE_SCORE,
 from .gaps import step_reach
 
 
+#: the most steps :func:`hold` lets coast as one stretch (:func:`coast_chunk`): a body resting on flat walls
+#: then reads and solves its held rows once a stretch instead of once a step. A stretch that does not
+#: coast to its end is stepped again one step at a time (its steps' arithmetic is wasted)
+CHUNK = 32
+
 @njit(cache=True, no_cpython_wrapper=True)
 def complete_samples(model, p, out, n0, n1, ws):
     """The box's columns (a prescribed box) and the energy of samples n0..n1-1, recorded by the model's fly.
@@ -309,6 +314,7 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
     low = lowest_free(ga, rest, C)
     a_end = ws.n[AF]
     started = False              # whether w[5], ls[0] hold the accelerations and forces at (t, q, qd)
+    single_until = 0             # the steps before this one go one at a time (a stretch that did not coast)
     while i < i_stop:
         ta = t0 + i * dt
         tb = t0 + (i + 1) * dt
@@ -317,6 +323,24 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
             held_accel(model, ta, q, qd, p, m, w[5], ridx, jac, winv, A, L, rinv, y, lam, factored)
             for j in range(m):
                 ls[0, j] = lam[j]
+        if started and i >= single_until:
+            # coasting: the steps up to CHUNK ahead as one stretch of uniform motion, looked at at its end
+            k, kept, n_rec, low = coast_chunk(model, t0, dt, i, min(i_stop, i + CHUNK), q, qd, p, tol, rest, m, ws,
+                                              out, n_rec, record_every, n_total, low, half, deep, drift, still, arest,
+                                              ridx, jac, winv, A, L, rinv, y, lam, qb, qdb, a_end)
+            if kept:
+                for d in range(n):
+                    q[d] = qb[d]
+                    w[5, d] = a_end[d]
+                for j in range(m):
+                    for s in range(4):
+                        ls[s, j] = lam[j]
+                i = k
+                factored = True
+                fresh = False
+                continue
+            single_until = k           # (its steps go one at a time)
+            factored = False           # (L, rinv hold the factorization at the stretch's end)
         coasted = False
         if vanish(w[5], n, tol, still):
             # no acceleration at the start: the step is uniform motion (RK4's stages all have the
@@ -380,6 +404,68 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
     if not fresh:
         model.phi(t0 + i * dt, q, p, ga)
     return i, 0, n_rec
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def coast_chunk(model, t0, dt, i, k_end, q, qd, p, tol, rest, m, ws, out, n_rec, record_every, n_total, low, half,
+                deep, drift, still, arest, ridx, jac, winv, A, L, rinv, y, lam, qb, qdb, a_end):
+    """Steps i .. k_end-1 of :func:`hold` as one stretch of uniform motion, from a step that coasted.
+
+    Each step of the stretch is what a step that coasts does (every
+    coordinate moves on at its rate over the step's own length, the free
+    gaps' bound lowered by its band), so the states are those steps' bit for
+    bit; the held rows are read, factored and solved once, at the stretch's
+    end. Its steps are kept if there the accelerations vanish, the held rows
+    are on their level, no force is below the release floor and the state is
+    finite; the samples on the way are written from n_rec (and written again
+    by the steps one at a time if not). Where the angles do not turn (their
+    rates times the stretch's length move no gap by more than ``drift``) the
+    held gaps and rates are affine in time and the held accelerations are
+    those of a body at rest on flat walls, so what holds at both ends holds
+    between them: a step that coasted at the start and the look at the end
+    stand for the looks of every step. Returns ``(k, kept, n_rec, low)``: k
+    the stretch's end (i where it was not tried), low the bound on the free
+    gaps at k (unchanged where not kept).
+    """
+    n = model.n_dof
+    if k_end - i < 2:
+        return i, False, n_rec, low
+    span = (k_end - i) * dt
+    turn = 0.0
+    for d in range(2, n, 3):
+        turn += abs(qd[d]) * span * tol[T_SPEED + d]
+    if not turn <= drift:
+        return i, False, n_rec, low
+    for d in range(n):
+        qb[d] = q[d]
+        qdb[d] = qd[d]
+    n0 = n_rec
+    lo = low
+    for j in range(i, k_end):
+        ta = t0 + j * dt
+        tb = t0 + (j + 1) * dt
+        h = tb - ta
+        band = step_reach(qd, qd, h, tol)
+        if lo - band + deep < band:        # a free gap may come near: hold's own test, step by step
+            return j + 1, False, n0, low
+        lo -= band
+        for d in range(n):
+            qb[d] = qb[d] + h * qd[d]
+        if (j + 1) % record_every == 0 or j + 1 == n_total:
+            record(model, tb, qb, qdb, p, n_rec, out, ws.box)
+            n_rec += 1
+    tb = t0 + k_end * dt
+    held_accel(model, tb, qb, qdb, p, m, a_end, ridx, jac, winv, A, L, rinv, y, lam, np.bool_(False))
+    kept = vanish(a_end, n, tol, still) and on_level(jac, ridx, m, n, half, drift, tb - (t0 + (k_end - 1) * dt))
+    for j in range(m):
+        if not lam[j] >= -arest / A[j, j]:
+            kept = False
+    for d in range(n):
+        if not math.isfinite(qb[d]):
+            kept = False
+    if not kept:
+        return k_end, False, n0, low
+    return k_end, True, n_rec, lo
 
 
 @njit(cache=True, no_cpython_wrapper=True, inline="always")
