@@ -881,6 +881,52 @@ def test_a_jack_pressed_into_a_corner_is_held_by_the_lcps_forces_none_pulling(ti
     assert np.abs(accel).max() <= 1e-12 * 9.81, accel
 
 
+
+@pytest.mark.parametrize("rows", [[13], [12, 13], [12, 13, 18], [14, 15, 16, 17]])
+def test_held_accelerations_hold_the_rows_as_numpy_solves_them(rows):
+    """The held dynamics on one, two, three and four rows of a moving pair, against numpy's solve.
+
+    The engine solves one and two held rows of a six-coordinate pair with its
+    loops unrolled, and any other number with the same code over a count
+    (modes.held_solve): each must give the accelerations ``a0 + W J^T lam``
+    whose held rows' accelerations vanish, ``J a + bias = 0``.
+    """
+    import numba
+
+    from jackbox.engine.modes import contact_accel
+    from jackbox.engine.records import AF, LAM, MODEL_AT, RIDX, ModelType, from_table, scratch
+
+    kernel = loader.kernel_for(jackbox.load_scene("drop"))
+    loader.compile_kernel(kernel, "exact")
+    p = api.prepare(jackbox.load_scene("drop")).p
+    rng = np.random.default_rng(len(rows))
+    q = np.array([0.1, 1.3, 0.2, -0.1, 1.2, 0.7]) + 0.05 * rng.standard_normal(6)
+    qd = rng.standard_normal(6)
+
+    @numba.njit
+    def held(table, q, qd, p, rows):
+        model = from_table(table, MODEL_AT, ModelType)
+        ws = scratch(model)
+        for i in range(rows.shape[0]):
+            ws.k[RIDX][i] = rows[i]
+        contact_accel(model, 0.3, q, qd, p, rows.shape[0], ws.n[AF], ws)
+        return ws.n[AF].copy(), ws.c[LAM][:rows.shape[0]].copy()
+
+    accel, lam = held(kernel.table(), q, qd, p, np.array(rows, np.int64))
+    n, C = kernel.N_DOF, kernel.N_CONTACT
+    J, bias, a0, w = np.zeros((C, n)), np.zeros(C), np.zeros(n), np.zeros(n)
+    kernel.phi_q(0.3, q, p, J)
+    kernel.gap_bias(0.3, q, qd, p, bias)
+    kernel.accel(0.3, q, qd, p, a0)
+    kernel.inverse_mass(p, w)
+    Jr = J[rows]
+    lam_ref = np.linalg.solve(Jr @ np.diag(w) @ Jr.T, -(Jr @ a0 + bias[rows]))
+    a_ref = a0 + w * (Jr.T @ lam_ref)
+    scale = np.abs(a0).max() + np.abs(w * (Jr.T @ lam_ref)).max()
+    np.testing.assert_allclose(lam, lam_ref, rtol=1e-11, atol=1e-12 * np.abs(lam_ref).max())
+    np.testing.assert_allclose(accel, a_ref, rtol=0, atol=1e-13 * scale)
+    assert np.abs(Jr @ accel + bias[rows]).max() <= 1e-13 * scale * np.abs(Jr).max()
+
 def test_a_box_corner_on_an_elastic_ground_stops_bouncing_below_the_event_band():
     """A draw of test_random_drops_never_penetrate_nor_gain_energy, kept (seed 3): a plastic
     square jack lies on the box's wall while the box pivots on one corner on an elastic
