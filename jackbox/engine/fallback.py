@@ -206,8 +206,14 @@ def pay_from_motion(model, t, q, qd, p, before, winv):
     The rise is paid from the kinetic energy relative to the centre of mass:
     the rates about it are scaled down, which keeps the linear momentum and
     leaves closed wall contacts closed (their normal rates scale too). Where
-    that energy does not suffice the rates about the centre of mass stop; a
-    prescribed box (energy supplied from outside) is left as it is.
+    that energy does not suffice the rates about the centre of mass stop and,
+    with a ground, the rest is paid from the centre of mass's vertical motion
+    (its speed scaled down: the ground and gravity act vertically only, so the
+    horizontal momentum is kept; a pair whose plastic impacts had just locked
+    it, a box rocking under a jack 190 and 1400 times its mass, was seen to
+    gain 1.4e-4 and 4.2e-4 of the scale in one step with nothing left about
+    its centre of mass). What neither can pay stays; a prescribed box (energy
+    supplied from outside) is left as it is.
     """
     if model.prescribed or model.n_dof != 6:
         return
@@ -218,9 +224,14 @@ def pay_from_motion(model, t, q, qd, p, before, winv):
     about = 0.5 * (mb * ((qd[0] - vx) ** 2 + (qd[1] - vy) ** 2) + qd[2] ** 2 / winv[2]
                    + mj * ((qd[3] - vx) ** 2 + (qd[4] - vy) ** 2) + qd[5] ** 2 / winv[5])
     s = math.sqrt(1.0 - rise / about) if rise < about else 0.0
+    wy = vy
+    if rise > about and model.has_ground:
+        rest = rise - about
+        along = 0.5 * (mb + mj) * vy * vy
+        wy = vy * math.sqrt(1.0 - rest / along) if rest < along else 0.0
     for b in range(2):
         qd[3 * b] = vx + s * (qd[3 * b] - vx)
-        qd[3 * b + 1] = vy + s * (qd[3 * b + 1] - vy)
+        qd[3 * b + 1] = wy + s * (qd[3 * b + 1] - vy)
         qd[3 * b + 2] *= s
 
 
