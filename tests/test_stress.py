@@ -616,7 +616,8 @@ def test_a_coarse_step_on_a_fast_turning_box_keeps_momentum_while_a_contact_is_h
 
 
 def test_held_passes_cut_a_step_by_the_fastest_turn():
-    """One pass up to TURN_PER_PASS of turn (either body's angle, forwards or backwards), then (turn / TURN_PER_PASS)^(5/4).
+    """One pass up to TURN_PER_PASS of turn (either body's angle, forwards or backwards, or the jack's way across
+    the box over L), then (turn / TURN_PER_PASS)^(5/4).
 
     k passes over a turn T leave RK4's error C T^5 / k^4: that many keep it C TURN_PER_PASS^5 for any turn.
     """
@@ -624,18 +625,44 @@ def test_held_passes_cut_a_step_by_the_fastest_turn():
     from jackbox.engine.integrator import held_passes as compiled
     held_passes = compiled.py_func         # (compiled without a wrapper for Python callers)
     qd = np.zeros(6)
-    assert held_passes(qd, 0.01, 6) == 1
+    assert held_passes(qd, 0.01, 6, 1.0) == 1
     qd[5] = -TURN_PER_PASS / 0.01            # the jack turns exactly TURN_PER_PASS in the step
-    assert held_passes(qd, 0.01, 6) == 1
+    assert held_passes(qd, 0.01, 6, 1.0) == 1
     qd[2] = 2.5 * TURN_PER_PASS / 0.01       # the box 2.5 times as far: 2.5^1.25 = 3.14
-    assert held_passes(qd, 0.01, 6) == 4
+    assert held_passes(qd, 0.01, 6, 1.0) == 4
     qd[2] = -16 * TURN_PER_PASS / 0.01       # 16 times: 16^1.25 = 32 exactly
-    assert held_passes(qd, 0.01, 6) == 32
-    qd[:] = [1e9, 1e9, 0.0, 1e9, 1e9, 0.0]   # speeds are not turns
-    assert held_passes(qd, 0.01, 6) == 1
-    assert held_passes(np.array([0.0, 0.0, 1e9]), 0.01, 3) == MAX_PASSES
-    assert held_passes(np.array([0.0, 0.0, np.nan]), 0.01, 3) == 1
+    assert held_passes(qd, 0.01, 6, 1.0) == 32
+    qd[:] = [1e9, 1e9, 0.0, 1e9, 1e9, 0.0]   # a pair moving as one is not turned by its speed
+    assert held_passes(qd, 0.01, 6, 1.0) == 1
+    # the jack crossing the box: 3 L / s against it over 0.01 s is a turn of 0.03 rad (2^1.25 = 2.38),
+    # and the same across a box of 0.5 m twice that (4^1.25 = 5.66)
+    qd[:] = [0.0, 2.4, 0.0, 0.0, -0.6, 0.0]
+    assert held_passes(qd, 0.01, 6, 1.0) == 3
+    assert held_passes(qd, 0.01, 6, 0.5) == 6
+    assert held_passes(np.array([0.0, 0.0, 1e9]), 0.01, 3, 1.0) == MAX_PASSES
+    assert held_passes(np.array([5.0, 5.0, 0.0]), 0.01, 3, 1.0) == 1     # (a jack alone: no box to cross)
+    assert held_passes(np.array([0.0, 0.0, np.nan]), 0.01, 3, 1.0) == 1
 
+
+#: a draw of the drops (campaign seed 1; dt, overrides): a box 58 times lighter than its jack pivots on a ground
+#: corner while it slides at 24 m/s under the jack, nearly still
+SLIDING_UNDER_A_STILL_JACK = (0.003329460190036321, {
+    "box.inner_half_width": 1.0, "box.wall_thickness": 0.1794853141133878, "box.mass": 58.42321231521603,
+    "jack.mass": 3413.27173722881, "jack.half_size": 0.16343909281510766, "gravity": 9.81,
+    "restitution": 0.0, "ground_restitution": 0.0,
+    "initial.q": [0.6860419841781038, 2.3602789502554224, -1.4026133315360068, 1.2146146868807755,
+                  2.4308385561966763, 0.3172271154844659],
+    "initial.qd": [-2.5868329965304673, -1.3436759589580414, 1.1213606713700426, 0.1407179571227754,
+                   7.566045444740984e-62, -3.0151435544837605e-308]})
+
+
+def test_a_box_sliding_fast_under_its_jack_takes_passes_for_the_jack_crossing_it():
+    """Its held steps turned the box 0.018 rad each (two passes by the angle) and one gained 1.8e-8 of the
+    energy's scale (the tests allow 1e-8 a held step): the jack crosses the turning box at 24 m/s, which
+    curves the held motion as a turn of 0.08 rad would. Held steps now count that crossing as a turn
+    (integrator.held_passes) and every check of the drops passes."""
+    dt, over = SLIDING_UNDER_A_STILL_JACK
+    check_drop_run(jackbox.load_scene(base("drop"), over), dt)
 
 #: a draw of the drops (dt, overrides), seed 6: a box pivoting on one ground corner with a plastic jack held
 #: against its wall, the two turning as one (0.0245 rad a step, later 0.586)

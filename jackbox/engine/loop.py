@@ -42,7 +42,7 @@ from .records import (AF, COAST, DENSE_AT, DENSE_SLOW, DENSE_FLOOR, DENSE_SCORE,
                       HANDOFF, HANDOFF_AT, HANDOFF_DENSE, HANDOFF_EVENTS, HANDOFF_MODES, HANDOFF_STUCK, HANDOFF_ZENO,
                       IMPACT_LOG_FULL, LAM, LS, MAX_EVENTS, MISSING, MODE_AT, MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT,
                       NEED_FALLBACK, NEED_HOLD, NEED_RELEASE, NONFINITE, PASSES_AT, Q0, QB, QD0, QDB, QDS, QS, RELEASE,
-                      RHS, RIDX, RINV, SET_AT, SLOW_AT, STAGES_AT, SWAP_BUDGET, T_AREST, T_EVENT, T_SPEED, WARN_LCP, WARN_LOCATE,
+                      RHS, RIDX, RINV, SET_AT, SLOW_AT, STAGES_AT, SWAP_BUDGET, T_AREST, T_EVENT, T_SPEED, T_WALL, WARN_LCP, WARN_LOCATE,
                       WARNING, WINV, ZENO_PASSES, ZENO_SPAN, Events, ExactType, ModelType, NaiveType, Samples, StagesType,
                       borrow, from_table, keep, scratch)
 from .gaps import step_reach
@@ -174,7 +174,7 @@ def advance(model, stages, ta, tb, q, qd, p, tol, rest, m, ws, log, n_ev, trial)
     span = ZENO_SPAN * (tb - ta)
     qb, qdb = ws.n[QB], ws.n[QDB]
     ga, gb = ws.c[GA], ws.c[GB]
-    ws.k[FLAGS, PASSES_AT] = held_passes(qd, tb - ta, n)    # (the step's held steps: integrator.rk4)
+    ws.k[FLAGS, PASSES_AT] = held_passes(qd, tb - ta, n, tol[T_WALL])    # (the step's held steps: integrator.rk4)
     for passes in range(1, MAX_EVENTS + 1):
         if passes % ZENO_PASSES == 0:
             if ta - t_mark < span:
@@ -357,7 +357,7 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
                         ls[s, j] = lam[j]
         if not coasted:
             rk4_rows(model, ta, q, qd, h, p, qb, qdb, m, w, ls, ridx, jac, winv, A, L, rinv, y, lam,
-                     held_passes(qd, h, n), factored, np.bool_(True))
+                     held_passes(qd, h, n, tol[T_WALL]), factored, np.bool_(True))
         stop = False
         for j in range(m):
             floor = -arest / A[j, j]
