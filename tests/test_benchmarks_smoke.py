@@ -114,9 +114,10 @@ def test_contact_side_by_side_with_another_checkout(tmp_path):
 
 
 def test_throughput_resting_row():
-    # jackbox bench's row for a step with held contacts (the settled plastic drop) against a
-    # free one: both figures measured, and the resting run really rests (the same four
-    # contacts held at its end, no impulse): a timing of the wrong thing would be worse than none
+    # jackbox bench's rows for a step with held contacts against a free one: the settled
+    # plastic drop, and the jack riding the shaken box's floor. Every figure measured, and
+    # the runs really hold (the drop the same four contacts at its end, no impulse; the
+    # stretch of shaken two tips and no event): a timing of the wrong thing would be worse than none
     from jackbox.bench import SIZES, bench_resting, markdown
 
     r = bench_resting(1, SIZES["quick"])
@@ -124,11 +125,16 @@ def test_throughput_resting_row():
     assert r["held"] == ["bottom:0", "bottom:1", "ground:2", "ground:3"] and r["held_contacts"] == 4
     for key in ("resting_ns_per_step", "free_ns_per_step", "ratio"):
         assert _positive(r[key]), (key, r[key])
+    ride = r["riding"]
+    assert ride["held"] == ["bottom:1", "bottom:2"] and ride["events"] == 0
+    for key in ("held_ns_per_step", "elastic_ns_per_step", "ratio"):
+        assert _positive(ride[key]), (key, ride[key])
     text = markdown({"command": "x", "machine": {"description": "m"}, "repeat": 1, "wall_seconds": 1.0,
                      "quick": True, "sizes": SIZES["quick"], "load_average": {"start": None, "end": None},
                      "scenes": [], "ceiling": {"reason": "-"}, "ensemble": {"reason": "-"}, "resting": r,
                      "targets": []})
-    assert "## Held contacts (drop)" in text and "bottom:0, bottom:1, ground:2, ground:3" in text
+    assert "## Held contacts" in text and "bottom:0, bottom:1, ground:2, ground:3" in text
+    assert "riding a shaken floor, shaken e = 0: 2 (bottom:1, bottom:2)" in text
 
 
 def test_campaign_quick_mode(tmp_path):

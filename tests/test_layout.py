@@ -155,11 +155,15 @@ def test_no_engine_function_is_called_with_a_literal_number_or_truth_value():
     # run_segment(..., 0, ...) and (..., 1, ...)): a literal handed to an engine
     # function costs a compile of it and of everything it inlines. Constants go
     # in typed (np.int64(0), np.bool_(False)); calls through the model's and the
-    # stages' function values are typed by their signatures and are not looked at
+    # stages' function values are typed by their signatures and are not looked at.
+    # A function inlined at Numba's level (inline="always") is never compiled on its
+    # own: its body is typed in each caller, where a literal is a constant on purpose
+    # (modes.held_solve's counts, so that its loops unroll)
     engine = Path(jackbox.__file__).parent / "engine"
     trees = {path.name: ast.parse(path.read_text(encoding="utf-8")) for path in sorted(engine.glob("*.py"))}
     jitted = {node.name for tree in trees.values() for node in ast.walk(tree)
-              if isinstance(node, ast.FunctionDef) and any("njit" in ast.unparse(d) for d in node.decorator_list)}
+              if isinstance(node, ast.FunctionDef) and any("njit" in ast.unparse(d) for d in node.decorator_list)
+              and not any("inline='always'" in ast.unparse(d) for d in node.decorator_list)}
     assert {"run_segment", "held_accel", "project_rows", "rk4_rows", "log_event"} <= jitted
     found = [f"{name}:{node.lineno} {node.func.id}({ast.unparse(arg)})"
              for name, tree in trees.items() for node in ast.walk(tree)
