@@ -27,7 +27,9 @@ Where contacts are held and nothing happens to them, :func:`hold` takes the
 steps in one call, as the model's ``fly`` does in free flight: a step through
 :func:`advance` makes some ten calls that pass the model and scratch records
 (each of their fields a word of its own, about 100 ns a call), more than the
-held step's own solves.
+held step's own solves. A body at rest there coasts (moves on at its rates),
+in stretches of up to :data:`CHUNK` steps looked at at their ends
+(:func:`coast_chunk`).
 """
 
 import math
@@ -288,8 +290,11 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
     A resting or sliding body (the settled drop: the jack slides along the
     floor of a box that slides on frictionless ground) takes a fifth of a
     held step's time; a step that coasted and stops the loop is handed back
-    to be integrated again (trial 0). Which steps coast, and their numbers,
-    depend on the state alone. The gaps at the state reached are left in
+    to be integrated again (trial 0). After a step that coasted, the steps
+    up to CHUNK ahead are tried as one stretch (:func:`coast_chunk`: the held
+    rows read once, at its end); a stretch that does not coast to its end
+    goes one step at a time. Which steps coast, and their numbers, depend on
+    the state alone. The gaps at the state reached are left in
     ``ws.c[GA]``. The samples on the way (steps that are multiples of
     record_every, and n_total) go into ``out`` from n_rec. Returns ``(i,
     trial, n_rec)``: trial 1 when the step it stopped before is already
