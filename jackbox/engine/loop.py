@@ -44,7 +44,7 @@ from .records import (AF, COAST, DENSE_AT, DENSE_SLOW, DENSE_FLOOR, DENSE_SCORE,
                       HANDOFF, HANDOFF_AT, HANDOFF_DENSE, HANDOFF_EVENTS, HANDOFF_MODES, HANDOFF_STUCK, HANDOFF_ZENO,
                       IMPACT_LOG_FULL, LAM, LS, MAX_EVENTS, MISSING, MODE_AT, MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT,
                       NEED_FALLBACK, NEED_HOLD, NEED_RELEASE, NONFINITE, PASSES_AT, Q0, QB, QD0, QDB, QDS, QS, RELEASE,
-                      RHS, RIDX, RINV, SET_AT, SLOW_AT, STAGES_AT, SWAP_BUDGET, T_AREST, T_EVENT, T_SPEED, T_WALL, WARN_LCP, WARN_LOCATE,
+                      RHS, RIDX, RINV, SET_AT, SLOW_AT, STAGES_AT, SWAP_BUDGET, T_AREST, T_EVENT, T_RBOX, T_SPEED, T_WALL, WARN_LCP, WARN_LOCATE,
                       WARNING, WINV, ZENO_PASSES, ZENO_SPAN, Events, ExactType, ModelType, NaiveType, Samples, StagesType,
                       borrow, from_table, keep, scratch)
 from .gaps import step_reach
@@ -54,6 +54,7 @@ from .gaps import step_reach
 #: then reads and solves its held rows once a stretch instead of once a step. A stretch that does not
 #: coast to its end is stepped again one step at a time (its steps' arithmetic is wasted)
 CHUNK = 32
+
 
 @njit(cache=True, no_cpython_wrapper=True)
 def complete_samples(model, p, out, n0, n1, ws):
@@ -439,6 +440,9 @@ def coast_chunk(model, t0, dt, i, k_end, q, qd, p, tol, rest, m, ws, out, n_rec,
     turn = 0.0
     for d in range(2, n, 3):
         turn += abs(qd[d]) * span * tol[T_SPEED + d]
+    if model.prescribed:          # (a box moved by a hand turns the walls of the rows held on it)
+        model.box_motion(t0 + i * dt, p, ws.box)
+        turn += abs(ws.box[5]) * span * tol[T_RBOX]
     if not turn <= drift:
         return i, False, n_rec, low
     for d in range(n):
