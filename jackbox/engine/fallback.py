@@ -39,8 +39,7 @@ from numba import njit
 from .impact import contact_matrix, lcp, solve_lcp
 from .modes import add_response, log_event, project_rest, rest_index
 from .records import (ACC, AF, CAND, FALLBACK, GS, HIT, LAM, LAMB, MODE_AT, NEAR, QDS, QS, RHS, RIDX, SET_AT,
-                      STABLE_STEPS, T_EVENT, T_GAP, T_VREST, VA, VB, VT, WINV)
-from .tolerances import GAP_TOL
+                      STABLE_STEPS, T_EVENT, T_GAP, T_VREST, T_WALL, VA, VB, VT, WINV)
 
 #: Newton passes of the position projection (each a position LCP; it stops once no gap is below the
 #: level). Four left a box rocking under a jack 1e4 times its mass 1e-8 L inside the ground after a
@@ -84,7 +83,7 @@ def moreau_step(model, t, h, q, qd, p, tol, ws):
     for k in range(C):
         member[k] = g[k] + 0.5 * h * min(vf[k], v0[k], 0.0) < tol[T_GAP]
         far = max(far, -0.5 * h * min(vf[k], v0[k], 0.0))
-    if far > UNRESOLVED_REACH * tol[T_GAP] / GAP_TOL:       # (see UNRESOLVED_REACH)
+    if far > UNRESOLVED_REACH * tol[T_WALL]:       # (see UNRESOLVED_REACH)
         for d in range(n):
             q[d] = np.nan
             qd[d] = np.nan

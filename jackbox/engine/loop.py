@@ -345,8 +345,9 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
                 factored = True
                 fresh = False
                 continue
-            single_until = k           # (its steps go one at a time)
-            factored = False           # (L, rinv hold the factorization at the stretch's end)
+            if k > i:                  # tried: its steps go one at a time, and L, rinv hold its end's rows
+                single_until = k
+                factored = False
         coasted = False
         if vanish(w[5], n, tol, still):
             # no acceleration at the start: the step is uniform motion (RK4's stages all have the
