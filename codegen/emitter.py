@@ -169,6 +169,12 @@ def emit_module(model: Model, command: str) -> str:
         position = {sym: i for i, (sym, _) in enumerate(replacements)}
         if fn.name == "accel_s":
             bodies += _accel_split(fn, outs, replacements, position, inputs, printer, {model.t, *model.p})
+        elif fn.name == "accel":
+            # on arrays, the tuple twin's terms as they are: the held step on tuples (the model's ride), on
+            # arrays (the engine's rk4) and free flight give the same numbers, whichever takes a step
+            bodies.append(f"def accel(t, q, qd, p, out):\n    \"\"\"{fn.doc}\"\"\"\n"
+                          "    a = accel_s(t, q, qd, p, accel_time_s(t, p))\n"
+                          + "".join(f"    out[{i}] = a[{i}]\n" for i in range(len(fn.outputs))))
         else:
             bodies.append(_function(fn, outs, replacements, position, inputs, printer))
 
@@ -200,15 +206,16 @@ def emit_module(model: Model, command: str) -> str:
         f"CONSTRAINT_NAMES = {tuple(model.constraint_names)!r}",
         f"E_SLOT = {[s.name for s in model.p].index('e')}",
         f"E_GROUND_SLOT = {[s.name for s in model.p].index('e_ground')}",
-        f"FUNCTIONS = {tuple(fn.name for fn in fs) + ('accel_time_s', 'contact_rows') + TUPLE_HELPERS!r}",
+        f"FUNCTIONS = {tuple(fn.name for fn in fs) + ('accel_time_s', 'contact_rows', 'contact_rows2_s') + TUPLE_HELPERS!r}",
     ]
-    bodies.append(_contact_rows(model, inputs, names))
+    bodies += _contact_rows(model, inputs, names)
     bodies += _tuple_helpers(len(model.q), len(model.p))
     return seal("\n".join(header) + "\n" + "".join("\n\n" + body for body in bodies))
 
 
-def _contact_rows(model: Model, inputs, names) -> str:
-    """``contact_rows(t, q, qd, p, rows, m, out)``: only the rows of the contacts asked for.
+def _contact_rows(model: Model, inputs, names) -> list[str]:
+    """``contact_rows(t, q, qd, p, rows, m, out)``: only the rows of the contacts asked for; and
+    ``contact_rows2_s(t, q, qd, p, k1, k2, two)``, one or two rows as tuples, the same terms (the same numbers).
 
     For each contact ``k`` of ``rows[:m]``, ``out[k, :n]`` is row k of
     ``phi_q``, ``out[k, n]`` its ``gap_bias``, ``out[k, n + 1]`` its gap and
@@ -248,44 +255,63 @@ def _contact_rows(model: Model, inputs, names) -> str:
     values = [v for family in model.families for row in family.values for v in row]
     used = set().union(*(e.free_symbols for e in outs), *(rhs.free_symbols for _, rhs in needed),
                        *(v.free_symbols for v in values))
-    lines = ["def contact_rows(t, q, qd, p, rows, m, out):",
-             f'    """The rows of the m contacts rows[:m]: out[k, :{n}] phi_q[k], out[k, {n}] gap_bias[k], '
-             f'out[k, {n + 1}] phi[k], out[k, {n + 2}] gap_rate[k]."""',
-             "    # Unpack inputs"]
-    for arg in ("t", "q", "qd", "p"):
-        for sym, (name, slot) in inputs[arg].items():
-            if sym in used and slot:
-                lines.append(f"    {name} = {slot}")
-    lines.append("    # Each contact's geometry, by its index in its family")
-    for family in model.families:
-        for j, sym in enumerate(family.symbols):
-            entries = [repr(float(v[j])) if v[j].is_Number else printer.doprint(v[j]) for v in family.values]
-            lines.append(f"    {local[sym]}s = ({', '.join(entries)},)")
-    lines.append(f"    # Terms shared by every contact ({len(shared)})")
-    lines += [f"    {printer.doprint(sym)} = {printer.doprint(rhs)}" for sym, rhs in shared]
-    lines += ["    for i in range(m):", "        k = rows[i]"]
-    first, branches = 0, len(model.families) > 1
-    pad = " " * (12 if branches else 8)
-    for f, (family, (lo, hi)) in enumerate(zip(model.families, spans)):
-        if branches:
-            last = f == len(model.families) - 1
-            lines.append("        else:" if last else f"        {'elif' if f else 'if'} k < {first + len(family.values)}:")
-        lines.append(f"{pad}c = k - {first}" if first else f"{pad}c = k")
-        lines += [f"{pad}{local[sym]} = {local[sym]}s[c]" for sym in family.symbols]
-        terms = [(sym, rhs) for sym, rhs in _needed(outs[lo:hi], replacements, position) if sym in per_contact]
-        lines.append(f"{pad}# Terms of the contact ({len(terms)})")
-        lines += [f"{pad}{printer.doprint(sym)} = {printer.doprint(rhs)}" for sym, rhs in terms]
-        lines += [f"{pad}out[k, {i}] = {_number(printer, e)}" for i, e in enumerate(outs[lo:hi])]
-        first += len(family.values)
     ops = sum(sp.count_ops(rhs) for _, rhs in needed) + sum(sp.count_ops(e) for e in outs)
-    lines.append(f"    # Total ops: {ops}")
-    lines.append("    return")
-    return "\n".join(lines) + "\n"
+    branches = len(model.families) > 1
+
+    def head(signature: str, doc: str) -> list[str]:
+        lines = [f"def {signature}:", f'    """{doc}"""', "    # Unpack inputs"]
+        for arg in ("t", "q", "qd", "p"):
+            for sym, (name, slot) in inputs[arg].items():
+                if sym in used and slot:
+                    lines.append(f"    {name} = {slot}")
+        lines.append("    # Each contact's geometry, by its index in its family")
+        for family in model.families:
+            for j, sym in enumerate(family.symbols):
+                entries = [repr(float(v[j])) if v[j].is_Number else printer.doprint(v[j]) for v in family.values]
+                lines.append(f"    {local[sym]}s = ({', '.join(entries)},)")
+        lines.append(f"    # Terms shared by every contact ({len(shared)})")
+        lines += [f"    {printer.doprint(sym)} = {printer.doprint(rhs)}" for sym, rhs in shared]
+        return lines
+
+    def contact(at: str, write) -> list[str]:
+        """Contact k's terms, each family's in a branch of its own, indented by `at`; write(pad, outs) its output."""
+        lines, first = [], 0
+        pad = at + ("    " if branches else "")
+        for f, (family, (lo, hi)) in enumerate(zip(model.families, spans)):
+            if branches:
+                last = f == len(model.families) - 1
+                lines.append(f"{at}else:" if last else f"{at}{'elif' if f else 'if'} k < {first + len(family.values)}:")
+            lines.append(f"{pad}c = k - {first}" if first else f"{pad}c = k")
+            lines += [f"{pad}{local[sym]} = {local[sym]}s[c]" for sym in family.symbols]
+            terms = [(sym, rhs) for sym, rhs in _needed(outs[lo:hi], replacements, position) if sym in per_contact]
+            lines.append(f"{pad}# Terms of the contact ({len(terms)})")
+            lines += [f"{pad}{printer.doprint(sym)} = {printer.doprint(rhs)}" for sym, rhs in terms]
+            lines += write(pad, outs[lo:hi])
+            first += len(family.values)
+        return lines
+
+    rows = head("contact_rows(t, q, qd, p, rows, m, out)",
+                f"The rows of the m contacts rows[:m]: out[k, :{n}] phi_q[k], out[k, {n}] gap_bias[k], "
+                f"out[k, {n + 1}] phi[k], out[k, {n + 2}] gap_rate[k].")
+    rows += ["    for i in range(m):", "        k = rows[i]"]
+    rows += contact("        ", lambda pad, es: [f"{pad}out[k, {i}] = {_number(printer, e)}" for i, e in enumerate(es)])
+    rows += [f"    # Total ops: {ops}", "    return"]
+
+    def as_tuple(name):
+        return lambda pad, es: [f"{pad}{name} = ({', '.join(_number(printer, e) for e in es)})"]
+
+    pair = head("contact_rows2_s(t, q, qd, p, k1, k2, two)",
+                f"Rows k1 and, where two, k2 of contact_rows() as tuples of {n + 3} (q, qd tuples; else k1's twice): "
+                "the held step's hot path (jackbox.engine.flight.ride).")
+    pair += ["    k = k1"] + contact("    ", as_tuple("r1"))
+    pair += ["    r2 = r1", "    if two:", "        k = k2"] + contact("        ", as_tuple("r2"))
+    pair += [f"    # Total ops: {ops} (a row more)", "    return r1, r2"]
+    return ["\n".join(rows) + "\n", "\n".join(pair) + "\n"]
 
 
 #: Tuple arithmetic of length N_DOF emitted with every model (no sympy involved), and the
 #: parameters as a tuple
-TUPLE_HELPERS = ("tuple_of", "axpy_s", "wsum_s", "params_of")
+TUPLE_HELPERS = ("tuple_of", "axpy_s", "wsum_s", "params_of", "wdot_s", "row_dot_s", "respond_s", "respond2_s")
 
 
 def _tuple_helpers(n: int, n_param: int) -> list[str]:
@@ -306,6 +332,20 @@ def _tuple_helpers(n: int, n_param: int) -> list[str]:
         "def params_of(p):\n"
         '    """The N_PARAM parameters as a tuple (read once, then held in registers: an ensemble block\'s lanes)."""\n'
         f"    return {tup(lambda i: f'p[{i}]', n_param)}\n",
+        # the held step's solve on tuples (jackbox.engine.flight.ride): each the operations of the engine's
+        # loop on arrays that it stands for, in their order (a sum starts at 0.0, as the loop's does)
+        "def wdot_s(x, w, y):\n"
+        '    """x M^-1 y for two contact rows (w = diag M^-1): an entry of impact.contact_matrix."""\n'
+        "    return 0.0" + "".join(f" + x[{i}] * w[{i}] * y[{i}]" for i in range(n)) + "\n",
+        "def row_dot_s(r, a):\n"
+        '    """A contact row\'s gap acceleration at accelerations a: its bias plus its Jacobian times a."""\n'
+        f"    return r[{n}]" + "".join(f" + r[{i}] * a[{i}]" for i in range(n)) + "\n",
+        "def respond_s(a, w, r, x):\n"
+        '    """a + M^-1 J^T x for one contact row r (modes.add_response)."""\n'
+        f"    return {tup(lambda i: f'a[{i}] + w[{i}] * (0.0 + r[{i}] * x)')}\n",
+        "def respond2_s(a, w, r1, x1, r2, x2):\n"
+        '    """a + M^-1 J^T x for two contact rows r1, r2 (modes.add_response)."""\n'
+        f"    return {tup(lambda i: f'a[{i}] + w[{i}] * (0.0 + r1[{i}] * x1 + r2[{i}] * x2)')}\n",
     ]
 
 
