@@ -61,6 +61,10 @@ LANES_SOURCE = Path(__file__).with_name("engine") / "lanes.py"
 #: each member alone through the exact loop (a kernel binds the real ones before a study uses them)
 LANES_STUB = ("def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):\n"
               "    for l in range(quiet.shape[0]):\n        quiet[l] = 0\n    return i\n")
+#: the held steps on floats of a model that has none compiled (yet): no step taken, the held loop takes them
+#: on its arrays (the same numbers); a kernel binds the real ones when the held loop is first in a table
+RIDE_STUB = ("def ride(t0, dt, i, i_stop, q, qd, p, tol, rest, m, k1, k2, winv, low, rec_t, rec_q, rec_qd, n_rec,\n"
+             "         record_every, n_total):\n    return i, low, n_rec\n")
 GENERATED_DIR = Path(__file__).resolve().parent.parent / "generated"
 #: functions a model may lack; the kernel only calls them when the model has them
 OPTIONAL = {
@@ -180,7 +184,8 @@ def intact(path: Path) -> bool:
     return _intact[stamp]
 
 
-def binding_parts(model_text: str, flight_text: str | None = None, lanes: bool = False) -> dict[str, str]:
+def binding_parts(model_text: str, flight_text: str | None = None, lanes: bool = False,
+                  ride: bool = False) -> dict[str, str]:
     """The text of each *binding part*: one small module per function the engine calls.
 
     A part holds one function of :data:`jackbox.engine.SIGNATURES` (or the
@@ -198,11 +203,14 @@ def binding_parts(model_text: str, flight_text: str | None = None, lanes: bool =
     lanes: the ``lanes`` part is an ensemble block's (:mod:`jackbox.engine.lanes`),
     for a model that has lanes (``clearance_v``: a free box); else it is
     :data:`LANES_STUB`, the same for every model, so a model compiles its
-    lanes only when a study first needs them.
+    lanes only when a study first needs them. ride: the ``ride`` part is the
+    model's held steps on floats (:func:`jackbox.engine.flight.ride`), else
+    :data:`RIDE_STUB`: compiled when a run first holds a contact
+    (:meth:`Kernel.table`).
     """
     flight_text = FLIGHT_SOURCE.read_text() if flight_text is None else flight_text
     lanes_text = LANES_SOURCE.read_text() if lanes and has_lanes(model_text) else LANES_STUB
-    return dict(_kept_parts(model_text, flight_text, lanes_text, engine.cache.DIGEST))
+    return dict(_kept_parts(model_text, flight_text, lanes_text, "" if ride else RIDE_STUB, engine.cache.DIGEST))
 
 
 #: a digest of this module's own text: how parts are cut (see _kept_parts)
@@ -210,7 +218,7 @@ _SELF = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
 
 
 @functools.lru_cache(maxsize=16)
-def _kept_parts(model_text: str, flight_text: str, lanes_text: str, digest: str) -> dict[str, str]:
+def _kept_parts(model_text: str, flight_text: str, lanes_text: str, stub_text: str, digest: str) -> dict[str, str]:
     """:func:`_binding_parts`, kept in the cache folder: a warm start reads it instead of parsing the model.
 
     Cutting a model into parts parses its text and walks every statement
@@ -219,7 +227,7 @@ def _kept_parts(model_text: str, flight_text: str, lanes_text: str, digest: str)
     module's text), so it never goes stale; one that cannot be read or
     written is simply made again.
     """
-    key = hashlib.sha256("\0".join([model_text, flight_text, lanes_text, digest, _SELF]).encode()).hexdigest()[:16]
+    key = hashlib.sha256("\0".join([model_text, flight_text, lanes_text, stub_text, digest, _SELF]).encode()).hexdigest()[:16]
     path = cache_dir() / "kernels" / f"parts_{key}.json"
     try:
         kept = json.loads(path.read_text(encoding="utf-8"))
@@ -227,7 +235,7 @@ def _kept_parts(model_text: str, flight_text: str, lanes_text: str, digest: str)
             return kept
     except (OSError, ValueError):
         pass
-    parts = _binding_parts(model_text, flight_text, lanes_text, digest)
+    parts = _binding_parts(model_text, flight_text, lanes_text, stub_text, digest)
     try:
         write_atomic(path, json.dumps(parts))
     except OSError:
@@ -240,9 +248,10 @@ def has_lanes(model_text: str) -> bool:
     return "clearance_v" in _functions_of(model_text)
 
 
-def _binding_parts(model_text: str, flight_text: str, lanes_text: str, digest: str) -> dict[str, str]:
-    """(binding_parts, kept for the texts a process sees again)"""
-    model_blocks, flight_blocks = _blocks(_with_stubs(model_text)), _blocks(flight_text) + _blocks(lanes_text)
+def _binding_parts(model_text: str, flight_text: str, lanes_text: str, stub_text: str, digest: str) -> dict[str, str]:
+    """(binding_parts, kept for the texts a process sees again; stub_text: defines ``ride`` over the hot path's)"""
+    model_blocks = _blocks(_with_stubs(model_text))
+    flight_blocks = _blocks(flight_text) + _blocks(lanes_text) + (_blocks(stub_text) if stub_text else [])
     defined = {name: i for i, (names, _, _) in enumerate(model_blocks + flight_blocks) for name in names}
     blocks = model_blocks + flight_blocks
     parts = {}
@@ -293,11 +302,15 @@ def part_entries() -> dict[str, tuple[str, ...]]:
 
 #: the helpers of the hot path a part compiles as njit functions (callees inlined by LLVM, or
 #: by Numba where marked), with their options
-_JITTED = {**{name: "" for name in ("tuple_of", "accel_s", "accel_time_s", "box_motion_s", "axpy_s", "wsum_s")},
+_JITTED = {**{name: "" for name in ("tuple_of", "accel_s", "accel_time_s", "box_motion_s", "axpy_s", "wsum_s",
+                                    "wdot_s", "row_dot_s", "respond_s", "respond2_s")},
            **{name: ', inline="always"' for name in INLINED + LANES_INLINED},
            # a lane near a wall (lanes.calm): phi_s and gap_rate_s inlined, so that LLVM computes the sine
            # and cosine of each angle once for both; no references counted (calm allocates nothing)
            **{name: ', inline="always"' for name in ("phi_s", "gap_rate_s")}, "calm": ", _nrt=False",
+           # the held steps' helpers (flight.ride): each called once in its loop, LLVM inlines them
+           **{name: "" for name in ("factor2", "solve2")},
+           **{name: ', inline="always"' for name in ("held_stage", "settle", "contact_rows2_s")},
            "trade": ", _nrt=False"}
 
 
@@ -358,7 +371,8 @@ def load_binding(model_file: Path, flight_text: str | None = None, lanes: bool =
     model_text = model_file.read_text()
     texts = binding_parts(model_text, flight_text, lanes)
     paths = {name: part_path(name, text) for name, text in texts.items()}
-    key = hashlib.sha256("\0".join([model_text, *map(str, paths.values())]).encode()).hexdigest()[:16]
+    # (the hot path's text too: its ride, bound later from it, is in no part yet)
+    key = hashlib.sha256("\0".join([model_text, str(flight_text), *map(str, paths.values())]).encode()).hexdigest()[:16]
     if key in _loaded:
         return _loaded[key]
     for name, text in texts.items():
@@ -375,6 +389,7 @@ def load_binding(model_file: Path, flight_text: str | None = None, lanes: bool =
     module.COMPILED = {name: compiled[name] for name in engine.SIGNATURES}
     module.PARTS = paths
     module.LANES = lanes and has_lanes(model_text)
+    module.FLIGHT_TEXT = flight_text
     module.PART_CACHE = {name: part.CACHE for name, part in parts.items()}
     module.CACHE = ("disabled" if numba.config.DISABLE_JIT else
                     "miss" if any(part.CACHE == "miss" for part in parts.values()) else "hit")
@@ -456,6 +471,7 @@ class Kernel:
             int(module.PRESCRIBED), int(module.HAS_GROUND), *(fns[name] for name in engine.SIGNATURES))
         self._jitted: dict = {}
         self._tables: dict = {}
+        self._ride = None             # the model's ride, once a table holds the held loop
         self._cache = module.CACHE     # reported by the first compile_kernel, "memory" after it
 
     def __getattr__(self, name):
@@ -487,8 +503,41 @@ class Kernel:
         """
         key = (loops, lazy)
         if key not in self._tables:
-            self._tables[key] = engine.table(self.record, loops, lazy)
+            table = engine.table(self.record, loops, lazy)
+            hold, ride = engine.TABLE.index("hold"), engine.TABLE.index("ride")
+            if numba.config.DISABLE_JIT:
+                if table[hold] != 0:
+                    table = (*table[:ride], self.ride(), *table[ride + 1:])
+            elif table[0, hold] != 0:      # the held loop's steps on floats: the model's own ride
+                fn = self.ride()
+                table[0, ride], table[1, ride] = fn.address, engine.native_address(fn)
+            self._tables[key] = table
         return self._tables[key]
+
+    def ride(self):
+        """The model's held steps on floats (:func:`jackbox.engine.flight.ride`), compiled (or loaded) on first need.
+
+        The binding has a stub in its place (:data:`RIDE_STUB`): a model that
+        never holds a contact (an elastic run) never compiles it (about 3 s).
+        """
+        if self._ride is None:
+            path = _write_part(self._ride_path(), self._ride_text())
+            part = _import_part(path)
+            if part.CACHE == "miss":
+                engine.cache.kept_for_now(f"the held steps of the model {Path(self.__file__).name}")
+            self._ride = part.COMPILED["ride"]
+        return self._ride
+
+    def ride_ready(self) -> bool:
+        """Whether the model's ride is loaded or cached (nothing to compile)."""
+        path = self._ride_path()
+        return self._ride is not None or str(path) in _parts or _cached("ride", path)
+
+    def _ride_text(self) -> str:
+        return binding_parts(Path(self.__file__).read_text(), self.module.FLIGHT_TEXT, ride=True)["ride"]
+
+    def _ride_path(self) -> Path:
+        return part_path("ride", self._ride_text())
 
     def integrate_exact(self, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every,
                         rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, ev_kind, n_ev, log=None):
@@ -499,9 +548,9 @@ class Kernel:
             if status != engine.MISSING:
                 return i, n_rec, n_ev, status
             # a step needs a stage compiled on first need: compile it, then go on from that step
-            if log and not all(engine.ready(name) for name in engine.LAZY):
-                log(f"compiling the engine's {', '.join(engine.LAZY)} stages for held contacts "
-                    f"at t = {t0 + i * dt:g} s (first use only) ...")
+            if log and not (all(engine.ready(name) for name in engine.LAZY) and self.ride_ready()):
+                log(f"compiling the engine's {', '.join(engine.LAZY)} stages and the model's held steps for "
+                    f"held contacts at t = {t0 + i * dt:g} s (first use only) ...")
             if engine.prepare((), ("exact",)) == "miss":
                 engine.cache.kept_for_now("a stage of the engine")
             self._tables.pop((("exact",), engine.RESUME), None)

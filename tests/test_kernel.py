@@ -114,6 +114,38 @@ def test_the_broad_phase_and_the_gap_rows_it_skips_change_nothing(builtin, over)
     assert ends[0] == ends[1]
 
 
+@pytest.mark.parametrize("name, over", [("shaken", {"restitution": 0.0}), ("spring", {"restitution": 0.0}),
+                                        ("hand", {"restitution": 0.0}),
+                                        ("drop", {"restitution": 0.3, "ground_restitution": 0.3})])
+def test_held_steps_on_floats_and_on_arrays_give_the_same_numbers(name, over, all_scenes):
+    """The model's ride (held steps on one or two contacts, on floats) against the held loop's arrays
+    (the kernel built with ``RIDE = False``): every sample, the end state, the contact modes and the event log
+    to the bit. Which of the two takes a held step depends on the state alone (the ride stops before a step
+    it does not take: one that coasts, needs passes or a look at the gaps), so a single operation out of
+    order would show. A third kernel whose ride moves each of its steps' rates by a part in 1e9 must differ:
+    the ride takes steps of each of these runs."""
+    from jackbox import loader
+    from jackbox.bench import Loop
+
+    scene = all_scenes[name].with_overrides(over)
+    text = loader.FLIGHT_SOURCE.read_text()
+    assert text.count("RIDE = True") == 1 and text.count("        q, qd = settle(") == 1
+    off = text.replace("RIDE = True", "RIDE = False")
+    nudged = text.replace("        q, qd = settle(", "        qdb = axpy_s(1e-9, qdb, qdb)\n        q, qd = settle(")
+    model_file = loader.ensure_model(scene)
+    whole = api.prepare(scene)
+    run = api.prepare(scene, t_end=min(whole.n_steps * whole.dt, 6.0))
+    ends, samples = [], []
+    for flight in (text, off, nudged):
+        loop = Loop(loader.load_kernel(model_file, flight), run, "exact", lean=False)
+        ends.append(loop.once())
+        samples.append([a.copy() for a in loop.rec])
+    assert ends[0] == ends[1]
+    for a, b in zip(samples[0], samples[1]):
+        np.testing.assert_array_equal(a, b)
+    assert ends[2] != ends[0]
+
+
 @pytest.mark.parametrize("name", ["hand", "shaken"])
 def test_every_sample_is_the_state_its_model_describes(name, all_scenes):
     # Samples are written by the free-flight loop (the model's fly, on tuples),

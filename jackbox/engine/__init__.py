@@ -245,7 +245,7 @@ def start(names, loops=(), lazy: bool = False, busy: float = 0.0) -> list[str]:
 #: benchmarks/compile_parts.py --scene drop, after Numba's first compile): only to share them out
 PART_COST = {"inverse_mass": 0.1, "accel": 0.05, "phi": 0.2, "gap_rate": 0.3, "contact_rows": 0.5,
              "energy": 0.1, "box_motion": 0.03, "clearance": 0.25, "flight": 1.4,
-             "lanes": 0.05}
+             "lanes": 0.05, "ride": 0.05}
 #: what Numba's first compile in a process costs beyond the function itself (see warm_binder)
 FIRST_COMPILE = 0.6
 #: a binding part's file -> the helper process compiling it (see start_binding)

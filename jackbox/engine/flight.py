@@ -14,16 +14,30 @@ record.
 Far from every wall the exact loop hands over to :func:`fly`, which
 integrates on floats only and looks at no gap row: the broad phase
 (:mod:`jackbox.engine.broad`) bounds them, so a quiet step costs one RK4 step.
+
+With one or two contacts held, the held loop (:func:`jackbox.engine.loop.hold`)
+hands its steps to :func:`ride`, the same step on floats (the model's
+``contact_rows2_s`` and the held solve on tuples): its own part, compiled
+when a run first holds a contact (``jackbox.loader.Kernel.ride``; until then a
+stub that takes no step). A step riding a shaken floor on two tips took 0.45
+of its time on the held loop's arrays.
 """
 
+import math
+
 from jackbox.engine.broad import bound as _bound
-from jackbox.engine.gaps import speed_bound as _speed_bound
-from jackbox.engine.integrator import NODES as _NODES, SCALE as _SCALE, WEIGHTS as _WEIGHTS
-from jackbox.engine.records import T_EVENT as _T_EVENT, T_GAP as _T_GAP
+from jackbox.engine.gaps import speed_bound as _speed_bound, step_reach as _step_reach
+from jackbox.engine.impact import RANK_TOL as _RANK_TOL
+from jackbox.engine.integrator import NODES as _NODES, SCALE as _SCALE, WEIGHTS as _WEIGHTS, held_passes as _held_passes
+from jackbox.engine.records import (COAST as _COAST, DRIFT as _DRIFT, T_AREST as _T_AREST, T_EVENT as _T_EVENT,
+                                    T_GAP as _T_GAP, T_SPEED as _T_SPEED, T_WALL as _T_WALL)
 
 #: skip the gap rows of steps whose bounding circles are far from contact
 #: (the benchmark compiles a copy with False to show the gain)
 BROAD_PHASE = True
+#: take held steps on one or two contacts on floats (:func:`ride`); with False the held loop takes every
+#: held step on its arrays (the tests compile a copy so, and compare: the same numbers)
+RIDE = True
 
 
 def rk4_stages(q, qd, dt, p, ta, tta, tm, ttm, tb, ttb):
@@ -177,6 +191,205 @@ def free_step(t, t_next, q_in, qd_in, dt, p, q_out, qd_out):
     for d in range(N_DOF):
         q_out[d] = qn[d]
         qd_out[d] = vn[d]
+
+
+def factor2(A11, A12, A22):
+    """The factorization of a held pair's 2 x 2 matrix as :func:`jackbox.engine.impact.factor_rows` makes it:
+    (1 / L11 or 0, L21, 1 / L22 or 0), a row that depends on the one before it (what is left of its diagonal
+    below RANK_TOL of it) given no force."""
+    r1, L21, r2 = 0.0, 0.0, 0.0
+    if A11 > _RANK_TOL * A11:
+        r1 = 1.0 / math.sqrt(A11)
+        L21 = A12 * r1
+    d = A22 - L21 * L21
+    if d > _RANK_TOL * A22:
+        r2 = 1.0 / math.sqrt(d)
+    return r1, L21, r2
+
+
+def solve2(r1, L21, r2, b1, b2):
+    """``x`` for ``A x = b`` with A factored by :func:`factor2` (:func:`jackbox.engine.impact.solve_rows`)."""
+    y1 = b1 * r1
+    y2 = (b2 - L21 * y1) * r2
+    x2 = y2 * r2
+    return (y1 - L21 * x2) * r1, x2
+
+
+def held_stage(t, q, qd, p, tt, w, m, k1, k2):
+    """An RK4 stage of a held step: the accelerations with contact k1 (and k2 where m = 2) held.
+
+    The operations of :func:`jackbox.engine.modes.held_accel` (the model's
+    accelerations, the held rows, the contact matrix, its factorization, the
+    solve and the response) in their order, on tuples: the same numbers.
+    Returns ``(accelerations, force 1, force 2, A11, A22)``.
+    """
+    a = accel_s(t, q, qd, p, tt)
+    r1, r2 = contact_rows2_s(t, q, qd, p, k1, k2, m == 2)
+    A11 = wdot_s(r1, w, r1)
+    if m == 1:
+        f1, _, _ = factor2(A11, 0.0, 1.0)
+        x1 = -row_dot_s(r1, a) * f1 * f1
+        return respond_s(a, w, r1, x1), x1, 0.0, A11, 1.0
+    A12 = wdot_s(r1, w, r2)
+    A22 = wdot_s(r2, w, r2)
+    f1, L21, f2 = factor2(A11, A12, A22)
+    x1, x2 = solve2(f1, L21, f2, -row_dot_s(r1, a), -row_dot_s(r2, a))
+    return respond2_s(a, w, r1, x1, r2, x2), x1, x2, A11, A22
+
+
+def settle(t, q, qd, p, w, m, k1, k2, level, drift, h):
+    """:func:`jackbox.engine.modes.settle_rows` on tuples, for one or two held rows: returns ``(q, qd)``.
+
+    The rows at (t, q, qd), factored; where a gap drifted past round-off, one
+    Newton pass on the gaps (:func:`jackbox.engine.modes.project_rows`) and the
+    rows read again where it ends; the rates projected with the first
+    factorization.
+    """
+    gap, rate = N_DOF + 1, N_DOF + 2
+    f1, L21, f2 = 1.0, 0.0, 1.0
+    for j in range(2):
+        r1, r2 = contact_rows2_s(t, q, qd, p, k1, k2, m == 2)
+        if j == 0:
+            if m == 1:
+                f1, L21, f2 = factor2(wdot_s(r1, w, r1), 0.0, 1.0)
+            else:
+                f1, L21, f2 = factor2(wdot_s(r1, w, r1), wdot_s(r1, w, r2), wdot_s(r2, w, r2))
+            on = abs(r1[gap] + level) <= drift and abs(r1[rate]) * h <= drift
+            if m == 2:
+                on = on and abs(r2[gap] + level) <= drift and abs(r2[rate]) * h <= drift
+            if on:
+                break
+            if m == 1:
+                q = respond_s(q, w, r1, -(r1[gap] + level) * f1 * f1)
+            else:
+                x1, x2 = solve2(f1, L21, f2, -(r1[gap] + level), -(r2[gap] + level))
+                q = respond2_s(q, w, r1, x1, r2, x2)
+    if m == 1:
+        return q, respond_s(qd, w, r1, -r1[rate] * f1 * f1)
+    x1, x2 = solve2(f1, L21, f2, -r1[rate], -r2[rate])
+    return q, respond2_s(qd, w, r1, x1, r2, x2)
+
+
+def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, low, rec_t, rec_q, rec_qd, n_rec,
+         record_every, n_total):
+    """Steps i, i+1, ... of a body riding on one or two held contacts (k1, k2; m of them), on floats.
+
+    The held loop's own step (:func:`jackbox.engine.loop.hold`: its first RK4
+    stage, :func:`jackbox.engine.integrator.rk4_rows` in one pass, the release
+    screen, the near test, :func:`jackbox.engine.modes.settle_rows`) with the
+    same operations in the same order, so the same numbers, with the state in
+    registers: the array code passes each stage's rows, forces and
+    factorization through memory. It stops *before* any step that needs more
+    than that (left to the held loop, which takes it from the same state):
+    one whose accelerations vanish at its start (the held loop lets it
+    coast), that takes more than one RK4 pass, whose forces might pull, whose
+    end is not finite, or in which a free contact comes within reach.
+    ``low``: the held loop's bound on the free gaps at step i. The samples on
+    the way go into the rec_* rows from n_rec (:func:`record_s`; the caller
+    completes them). Returns ``(i, low, n_rec)``: low at the step reached.
+
+    The four stages are one loop (its body, with the two rows' terms, is
+    compiled once: written out four times it took 10 s to compile, against
+    about 2 s).
+    """
+    if not RIDE:
+        return i, low, n_rec
+    half = 0.5 * tol[_T_EVENT]
+    deep = half + tol[_T_EVENT]
+    arest = tol[_T_AREST]
+    drift = _DRIFT * tol[_T_EVENT]
+    still = _COAST * arest
+    w = tuple_of(winv)
+    q, qd = tuple_of(q_io), tuple_of(qd_io)
+    t_end = math.nan                   # the last step's last stage time, and its terms of time
+    tt_end = accel_time_s(t0 + i * dt, p)
+    while i < i_stop:
+        ta = t0 + i * dt
+        tb = t0 + (i + 1) * dt
+        h = tb - ta
+        if _held_passes(qd_io, h, N_DOF, tol[_T_WALL]) != 1:
+            break
+        tt = tt_end if ta == t_end else accel_time_s(ta, p)
+        # the stages: a1..a4 their accelerations, v2..v4 their rates; the forces' smallest, and whether
+        # every one was a number
+        a1 = a2 = a3 = a4 = v2 = v3 = v4 = qd
+        low1 = low2 = math.inf
+        numbers = True
+        A11 = A22 = 1.0
+        coast = False
+        for s in range(4):
+            hs = _NODES[s] * h
+            if s == 0:
+                ts, qs, vs = ta, q, qd
+            elif s == 1:
+                tt = accel_time_s(ta + hs, p)
+                ts, qs, vs = ta + hs, axpy_s(hs, qd, q), axpy_s(hs, a1, qd)
+            elif s == 2:
+                ts, qs, vs = ta + hs, axpy_s(hs, v2, q), axpy_s(hs, a2, qd)
+            else:
+                t_end = ta + hs
+                tt_end = accel_time_s(t_end, p)
+                tt = tt_end
+                ts, qs, vs = t_end, axpy_s(hs, v3, q), axpy_s(hs, a3, qd)
+            a, x1, x2, A11, A22 = held_stage(ts, qs, vs, p, tt, w, m, k1, k2)
+            numbers = numbers and x1 == x1 and x2 == x2
+            low1 = min(low1, x1)
+            low2 = min(low2, x2)
+            if s == 0:
+                a1 = a
+                coast = True
+                for d in range(N_DOF):
+                    if not abs(a[d]) * tol[_T_SPEED + d] <= still:
+                        coast = False
+                if coast:
+                    break
+            elif s == 1:
+                a2, v2 = a, vs
+            elif s == 2:
+                a3, v3 = a, vs
+            else:
+                a4, v4 = a, vs
+        if coast:
+            break
+        hs = h / _SCALE
+        qb = wsum_s(q, hs, _WEIGHTS, qd, v2, v3, v4)
+        qdb = wsum_s(qd, hs, _WEIGHTS, a1, a2, a3, a4)
+        if not (numbers and low1 >= -arest / A11 and (m == 1 or low2 >= -arest / A22)):
+            break
+        finite = True
+        for d in range(N_DOF):
+            if not (math.isfinite(qb[d]) and math.isfinite(qdb[d])):
+                finite = False
+        if not finite:
+            break
+        band = _step_reach(qd, qdb, h, tol)
+        if low - band + deep < band:   # a free gap may come within the step's reach: the gaps themselves
+            ga = phi_s(ta, q, p)
+            gb = phi_s(tb, qb, p)
+            near = False
+            low = math.inf
+            for k in range(N_CONTACT):
+                if not rest[k]:
+                    low = min(low, gb[k])
+                    if min(ga[k], gb[k]) + deep < band:
+                        near = True
+            if near:
+                break
+        else:
+            low -= band
+        # the rows back on their level (jackbox.engine.modes.settle_rows): where a gap drifted past
+        # round-off, one Newton pass on the gaps and the rates from the rows there; else the rates only
+        q, qd = settle(tb, qb, qdb, p, w, m, k1, k2, half, drift, h)
+        for d in range(N_DOF):        # what the projection moved any gap by, at most
+            low -= abs(q[d] - qb[d]) * tol[_T_SPEED + d]
+        for d in range(N_DOF):
+            q_io[d] = q[d]
+            qd_io[d] = qd[d]
+        i += 1
+        if i % record_every == 0 or i == n_total:
+            record_s(tb, q, qd, n_rec, rec_t, rec_q, rec_qd)
+            n_rec += 1
+    return i, low, n_rec
 
 
 #: the helpers a binding part inlines at Numba's level (``inline="always"``)

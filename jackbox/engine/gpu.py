@@ -212,6 +212,13 @@ def lanes_none(t0, dt, i, i_stop, S, p, tol, live, quiet):
     return i
 
 
+def ride_none(t0, dt, i, i_stop, q, qd, p, tol, rest, m, k1, k2, winv, low, rec_t, rec_q, rec_qd, n_rec,
+              record_every, n_total):
+    """(a kernel's model takes its held steps through the held loop's arrays: the same numbers, one function
+    less to compile for the GPU)"""
+    return i, low, n_rec
+
+
 # ---------------------------------------------------------------------------
 # an ensemble in rounds: every member flies while it is quiet, then those that need the exact loop take it
 
@@ -356,6 +363,7 @@ from jackbox.engine.records import Events as _Events, Model as _Model, Samples a
 _gpu.to_device(globals())
 _exact = _gpu.device(_gpu.exact_on)
 _lanes = _gpu.device(_gpu.lanes_none)
+_ride = _gpu.device(_gpu.ride_none)
 _step, _update, _crossing, _release, _fallback, _hold = _gpu.stage_devices()
 _gpu_start, _gpu_alone, _gpu_fly = (_gpu.device(f) for f in (_gpu.member_start, _gpu.member_alone, _gpu.member_fly))
 _N, _C, _NP, _NT, _NR = {N_DOF}, {N_CONTACT}, {N_PARAM}, {N_TOL}, {N_REST}
@@ -364,7 +372,7 @@ _N, _C, _NP, _NT, _NR = {N_DOF}, {N_CONTACT}, {N_PARAM}, {N_TOL}, {N_REST}
 @_cuda.jit(device=True, inline="always")
 def _model():
     return _Model({N_DOF}, {N_CONTACT}, {N_WALL}, {E_SLOT}, {E_GROUND_SLOT}, {PRESCRIBED}, {HAS_GROUND},
-                  {FUNCTIONS}, _lanes)
+                  {FUNCTIONS}, _lanes, _ride)
 
 
 @_cuda.jit(device=True, inline="always")
@@ -514,7 +522,7 @@ def calm_text(model_text: str) -> str:
 def kernel_text(model_text: str, flight_text: str, constants: dict) -> str:
     """The text of a model's kernel file (see :data:`KERNELS`): the model's text (with the loader's stubs for
     what it lacks), the hot path's, the lanes' calm test, the kernels."""
-    functions = ", ".join(name for name in SIGNATURES if name != "lanes")
+    functions = ", ".join(name for name in SIGNATURES if name not in ("lanes", "ride"))
     filled = KERNELS
     for key, value in {**constants, "FUNCTIONS": functions, "SC": SC, "SN": SN, "SK": SK, "MODE_SLOTS": MODE_SLOTS,
                        "ROW": constants["N_DOF"] + ROW_EXTRA,

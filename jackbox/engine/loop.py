@@ -321,7 +321,21 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
     a_end = ws.n[AF]
     started = False              # whether w[5], ls[0] hold the accelerations and forces at (t, q, qd)
     single_until = 0             # the steps before this one go one at a time (a stretch that did not coast)
+    rode = -1                    # the step the model's ride stopped before (taken here)
     while i < i_stop:
+        if not started and m <= 2 and rode != i:
+            # one or two rows held: the model's ride takes the steps it can on floats (the same numbers)
+            n0 = n_rec
+            rode, low, n_rec = model.ride(t0, dt, i, i_stop, q, qd, p, tol, rest, m, ridx[0], ridx[m - 1], winv,
+                                          low, out.t, out.q, out.qd, n_rec, record_every, n_total)
+            if n_rec > n0:
+                complete_samples(model, p, out, n0, n_rec, ws)
+            if rode > i:
+                i = rode
+                fresh = False
+                factored = False
+                if i == i_stop:
+                    break
         ta = t0 + i * dt
         tb = t0 + (i + 1) * dt
         h = tb - ta
