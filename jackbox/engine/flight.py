@@ -290,7 +290,7 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, low, rec
 
     The four stages are one loop (its body, with the two rows' terms, is
     compiled once: written out four times it took 10 s to compile, against
-    about 2 s).
+    3.8 s).
     """
     if not RIDE:
         return i, low, n_rec
