@@ -271,7 +271,7 @@ def settle(t, q, qd, p, w, m, k1, k2, level, drift, h):
 
 
 def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, low, rec_t, rec_q, rec_qd, n_rec,
-         record_every, n_total):
+         record_every, n_total, qb_out, qdb_out, ga_out, gb_out, ls, A):
     """Steps i, i+1, ... of a body riding on one or two held contacts (k1, k2; m of them), on floats.
 
     The held loop's own step (:func:`jackbox.engine.loop.hold`: its first RK4
@@ -282,18 +282,23 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, low, rec
     factorization through memory. It stops *before* any step that needs more
     than that (left to the held loop, which takes it from the same state):
     one whose accelerations vanish at its start (the held loop lets it
-    coast), that takes more than one RK4 pass, whose forces might pull, whose
-    end is not finite, or in which a free contact comes within reach.
+    coast) or that takes more than one RK4 pass. One whose forces might pull,
+    whose end is not finite, or in which a free contact comes within reach it
+    hands over as the held loop would, integrated (its end in qb_out,
+    qdb_out, the gaps at both ends in ga_out, gb_out, the stages' forces in
+    ``ls`` and the diagonal of their last matrix in A), for the exact loop's
+    event search (:func:`jackbox.engine.loop.advance`).
     ``low``: the held loop's bound on the free gaps at step i. The samples on
     the way go into the rec_* rows from n_rec (:func:`record_s`; the caller
-    completes them). Returns ``(i, low, n_rec)``: low at the step reached.
+    completes them). Returns ``(i, low, n_rec, trial)``: low at the step
+    reached, trial 1 where that step is handed over.
 
     The four stages are one loop (its body, with the two rows' terms, is
     compiled once: written out four times it took 10 s to compile, against
     3.8 s).
     """
     if not RIDE:
-        return i, low, n_rec
+        return i, low, n_rec, 0
     half = 0.5 * tol[_T_EVENT]
     deep = half + tol[_T_EVENT]
     arest = tol[_T_AREST]
@@ -332,6 +337,9 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, low, rec
                 tt = tt_end
                 ts, qs, vs = t_end, axpy_s(hs, v3, q), axpy_s(hs, a3, qd)
             a, x1, x2, A11, A22 = held_stage(ts, qs, vs, p, tt, w, m, k1, k2)
+            ls[s, 0] = x1
+            if m == 2:
+                ls[s, 1] = x2
             numbers = numbers and x1 == x1 and x2 == x2
             low1 = min(low1, x1)
             low2 = min(low2, x2)
@@ -354,27 +362,32 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, low, rec
         hs = h / _SCALE
         qb = wsum_s(q, hs, _WEIGHTS, qd, v2, v3, v4)
         qdb = wsum_s(qd, hs, _WEIGHTS, a1, a2, a3, a4)
-        if not (numbers and low1 >= -arest / A11 and (m == 1 or low2 >= -arest / A22)):
-            break
-        finite = True
+        # a force that might pull, or an end that is not finite: the exact loop's step
+        stop = not (numbers and low1 >= -arest / A11 and (m == 1 or low2 >= -arest / A22))
         for d in range(N_DOF):
             if not (math.isfinite(qb[d]) and math.isfinite(qdb[d])):
-                finite = False
-        if not finite:
-            break
+                stop = True
         band = _step_reach(qd, qdb, h, tol)
-        if low - band + deep < band:   # a free gap may come within the step's reach: the gaps themselves
+        if stop or low - band + deep < band:   # a free gap may come within the step's reach: the gaps themselves
             ga = phi_s(ta, q, p)
             gb = phi_s(tb, qb, p)
-            near = False
             low = math.inf
             for k in range(N_CONTACT):
                 if not rest[k]:
                     low = min(low, gb[k])
                     if min(ga[k], gb[k]) + deep < band:
-                        near = True
-            if near:
-                break
+                        stop = True
+            if stop:       # the step is the exact loop's: handed over, integrated
+                for d in range(N_DOF):
+                    qb_out[d] = qb[d]
+                    qdb_out[d] = qdb[d]
+                for k in range(N_CONTACT):
+                    ga_out[k] = ga[k]
+                    gb_out[k] = gb[k]
+                A[0, 0] = A11
+                if m == 2:
+                    A[1, 1] = A22
+                return i, low, n_rec, 1
         else:
             low -= band
         # the rows back on their level (jackbox.engine.modes.settle_rows): where a gap drifted past
@@ -389,7 +402,7 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, low, rec
         if i % record_every == 0 or i == n_total:
             record_s(tb, q, qd, n_rec, rec_t, rec_q, rec_qd)
             n_rec += 1
-    return i, low, n_rec
+    return i, low, n_rec, 0
 
 
 #: the helpers a binding part inlines at Numba's level (``inline="always"``)

@@ -213,10 +213,10 @@ def lanes_none(t0, dt, i, i_stop, S, p, tol, live, quiet):
 
 
 def ride_none(t0, dt, i, i_stop, q, qd, p, tol, rest, m, k1, k2, winv, low, rec_t, rec_q, rec_qd, n_rec,
-              record_every, n_total):
+              record_every, n_total, qb, qdb, ga, gb, ls, A):
     """(a kernel's model takes its held steps through the held loop's arrays: the same numbers, one function
     less to compile for the GPU)"""
-    return i, low, n_rec
+    return i, low, n_rec, 0
 
 
 # ---------------------------------------------------------------------------

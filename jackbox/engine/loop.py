@@ -326,10 +326,13 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
         if not started and m <= 2 and rode != i:
             # one or two rows held: the model's ride takes the steps it can on floats (the same numbers)
             n0 = n_rec
-            rode, low, n_rec = model.ride(t0, dt, i, i_stop, q, qd, p, tol, rest, m, ridx[0], ridx[m - 1], winv,
-                                          low, out.t, out.q, out.qd, n_rec, record_every, n_total)
+            rode, low, n_rec, trial = model.ride(t0, dt, i, i_stop, q, qd, p, tol, rest, m, ridx[0], ridx[m - 1],
+                                                 winv, low, out.t, out.q, out.qd, n_rec, record_every, n_total, qb,
+                                                 qdb, ga, gb, ls, A)
             if n_rec > n0:
                 complete_samples(model, p, out, n0, n_rec, ws)
+            if trial:         # its next step comes near a free contact: integrated, for advance
+                return rode, 1, n_rec
             if rode > i:
                 i = rode
                 fresh = False

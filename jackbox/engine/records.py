@@ -156,8 +156,10 @@ SIGNATURES = {
     # an ensemble block's lanes (jackbox/engine/lanes.py, compiled with the model when a study needs it)
     "lanes": I8(F8, F8, I8, I8, V1, V1, V1, I1, I1),             # (t0, dt, i, i_stop, S, p, tol, live, quiet)
     # held steps on one or two contacts (jackbox/engine/flight.py): (t0, dt, i, i_stop, q, qd, p, tol, rest, m,
-    # k1, k2, winv, low, rec_t, rec_q, rec_qd, n_rec, record_every, n_total) -> (i, low, n_rec)
-    "ride": types.Tuple((I8, F8, I8))(F8, F8, I8, I8, V1, V1, V1, V1, I1, I8, I8, I8, V1, F8, V1, V2, V2, I8, I8, I8),
+    # k1, k2, winv, low, rec_t, rec_q, rec_qd, n_rec, record_every, n_total, qb, qdb, ga, gb, ls, A) -> (i, low,
+    # n_rec, trial)
+    "ride": types.Tuple((I8, F8, I8, I8))(F8, F8, I8, I8, V1, V1, V1, V1, I1, I8, I8, I8, V1, F8, V1, V2, V2, I8, I8,
+                                          I8, V1, V1, V1, V1, V2, V2),
 }
 #: members of an ensemble block, stepped together in the lanes of four vectors (jackbox.engine.lanes): the
 #: terms of time (a shaking force's sine, two calls of libm a step) and the loops' overhead are the block's,
