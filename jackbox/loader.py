@@ -63,8 +63,8 @@ LANES_STUB = ("def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):\n"
               "    for l in range(quiet.shape[0]):\n        quiet[l] = 0\n    return i\n")
 #: the held steps on floats of a model that has none compiled (yet): no step taken, the held loop takes them
 #: on its arrays (the same numbers); a kernel binds the real ones when the held loop is first in a table
-RIDE_STUB = ("def ride(t0, dt, i, i_stop, q, qd, p, tol, rest, m, k1, k2, winv, low, rec_t, rec_q, rec_qd, n_rec,\n"
-             "         record_every, n_total, qb, qdb, ga, gb, ls, A):\n    return i, low, n_rec, 0\n")
+RIDE_STUB = ("def ride(t0, dt, i, i_stop, q, qd, p, tol, rest, m, k1, k2, winv, io_f, rec_t, rec_q, rec_qd, io_k,\n"
+             "         record_every, n_total, qb, qdb, ga, gb, ls, A):\n    io_k[1] = 0\n    return i\n")
 GENERATED_DIR = Path(__file__).resolve().parent.parent / "generated"
 #: functions a model may lack; the kernel only calls them when the model has them
 OPTIONAL = {

@@ -270,7 +270,7 @@ def settle(t, q, qd, p, w, m, k1, k2, level, drift, h):
     return q, respond2_s(qd, w, r1, x1, r2, x2)
 
 
-def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, low, rec_t, rec_q, rec_qd, n_rec,
+def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, rec_t, rec_q, rec_qd, io_k,
          record_every, n_total, qb_out, qdb_out, ga_out, gb_out, ls, A):
     """Steps i, i+1, ... of a body riding on one or two held contacts (k1, k2; m of them), on floats.
 
@@ -288,17 +288,20 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, low, rec
     qdb_out, the gaps at both ends in ga_out, gb_out, the stages' forces in
     ``ls`` and the diagonal of their last matrix in A), for the exact loop's
     event search (:func:`jackbox.engine.loop.advance`).
-    ``low``: the held loop's bound on the free gaps at step i. The samples on
-    the way go into the rec_* rows from n_rec (:func:`record_s`; the caller
-    completes them). Returns ``(i, low, n_rec, trial)``: low at the step
-    reached, trial 1 where that step is handed over.
+    ``io_f[0]``: the held loop's bound on the free gaps at step i, then at the
+    step reached. The samples on the way go into the rec_* rows from
+    ``io_k[0]`` (:func:`record_s`; the caller completes them), which is left
+    at the next; ``io_k[1]``: 1 where the step reached is handed over.
+    Returns the step reached.
 
     The four stages are one loop (its body, with the two rows' terms, is
     compiled once: written out four times it took 10 s to compile, against
     3.8 s).
     """
+    io_k[1] = 0
     if not RIDE:
-        return i, low, n_rec, 0
+        return i
+    low, n_rec = io_f[0], io_k[0]
     half = 0.5 * tol[_T_EVENT]
     deep = half + tol[_T_EVENT]
     arest = tol[_T_AREST]
@@ -387,7 +390,8 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, low, rec
                 A[0, 0] = A11
                 if m == 2:
                     A[1, 1] = A22
-                return i, low, n_rec, 1
+                io_f[0], io_k[0], io_k[1] = low, n_rec, 1
+                return i
         else:
             low -= band
         # the rows back on their level (jackbox.engine.modes.settle_rows): where a gap drifted past
@@ -402,7 +406,8 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, low, rec
         if i % record_every == 0 or i == n_total:
             record_s(tb, q, qd, n_rec, rec_t, rec_q, rec_qd)
             n_rec += 1
-    return i, low, n_rec, 0
+    io_f[0], io_k[0] = low, n_rec
+    return i
 
 
 #: the helpers a binding part inlines at Numba's level (``inline="always"``)

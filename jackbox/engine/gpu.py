@@ -212,11 +212,12 @@ def lanes_none(t0, dt, i, i_stop, S, p, tol, live, quiet):
     return i
 
 
-def ride_none(t0, dt, i, i_stop, q, qd, p, tol, rest, m, k1, k2, winv, low, rec_t, rec_q, rec_qd, n_rec,
+def ride_none(t0, dt, i, i_stop, q, qd, p, tol, rest, m, k1, k2, winv, io_f, rec_t, rec_q, rec_qd, io_k,
               record_every, n_total, qb, qdb, ga, gb, ls, A):
     """(a kernel's model takes its held steps through the held loop's arrays: the same numbers, one function
     less to compile for the GPU)"""
-    return i, low, n_rec, 0
+    io_k[1] = 0
+    return i
 
 
 # ---------------------------------------------------------------------------

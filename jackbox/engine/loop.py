@@ -44,6 +44,7 @@ from .records import (AF, COAST, DENSE_AT, DENSE_SLOW, DENSE_FLOOR, DENSE_SCORE,
                       HANDOFF, HANDOFF_AT, HANDOFF_DENSE, HANDOFF_EVENTS, HANDOFF_MODES, HANDOFF_STUCK, HANDOFF_ZENO,
                       IMPACT_LOG_FULL, LAM, LS, MAX_EVENTS, MISSING, MODE_AT, MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT,
                       NEED_FALLBACK, NEED_HOLD, NEED_RELEASE, NONFINITE, PASSES_AT, Q0, QB, QD0, QDB, QDS, QS, RELEASE,
+                      RIDE_F, RIDE_K,
                       RHS, RIDX, RINV, SET_AT, SLOW_AT, STAGES_AT, SWAP_BUDGET, T_AREST, T_EVENT, T_RBOX, T_SPEED, T_WALL, WARN_LCP, WARN_LOCATE,
                       WARNING, WINV, ZENO_PASSES, ZENO_SPAN, Events, ExactType, ModelType, NaiveType, Samples, StagesType,
                       borrow, from_table, keep, scratch)
@@ -326,12 +327,14 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
         if not started and m <= 2 and rode != i:
             # one or two rows held: the model's ride takes the steps it can on floats (the same numbers)
             n0 = n_rec
-            rode, low, n_rec, trial = model.ride(t0, dt, i, i_stop, q, qd, p, tol, rest, m, ridx[0], ridx[m - 1],
-                                                 winv, low, out.t, out.q, out.qd, n_rec, record_every, n_total, qb,
-                                                 qdb, ga, gb, ls, A)
+            io_f, io_k = ws.n[RIDE_F], ws.k[RIDE_K]
+            io_f[0], io_k[0] = low, n_rec
+            rode = model.ride(t0, dt, i, i_stop, q, qd, p, tol, rest, m, ridx[0], ridx[m - 1], winv, io_f, out.t,
+                              out.q, out.qd, io_k, record_every, n_total, qb, qdb, ga, gb, ls, A)
+            low, n_rec = io_f[0], io_k[0]
             if n_rec > n0:
                 complete_samples(model, p, out, n0, n_rec, ws)
-            if trial:         # its next step comes near a free contact: integrated, for advance
+            if io_k[1]:         # its next step comes near a free contact: integrated, for advance
                 return rode, 1, n_rec
             if rode > i:
                 i = rode

@@ -156,10 +156,11 @@ SIGNATURES = {
     # an ensemble block's lanes (jackbox/engine/lanes.py, compiled with the model when a study needs it)
     "lanes": I8(F8, F8, I8, I8, V1, V1, V1, I1, I1),             # (t0, dt, i, i_stop, S, p, tol, live, quiet)
     # held steps on one or two contacts (jackbox/engine/flight.py): (t0, dt, i, i_stop, q, qd, p, tol, rest, m,
-    # k1, k2, winv, low, rec_t, rec_q, rec_qd, n_rec, record_every, n_total, qb, qdb, ga, gb, ls, A) -> (i, low,
-    # n_rec, trial)
-    "ride": types.Tuple((I8, F8, I8, I8))(F8, F8, I8, I8, V1, V1, V1, V1, I1, I8, I8, I8, V1, F8, V1, V2, V2, I8, I8,
-                                          I8, V1, V1, V1, V1, V2, V2),
+    # k1, k2, winv, io_f, rec_t, rec_q, rec_qd, io_k, record_every, n_total, qb, qdb, ga, gb, ls, A) -> i; in and
+    # out through io_f (the bound on the free gaps) and io_k (the samples written, a step handed over). (A tuple
+    # returned cost every engine part that takes a model record 1-2 s more to compile: update 8.1-8.2 s
+    # against 6.1-6.2)
+    "ride": I8(F8, F8, I8, I8, V1, V1, V1, V1, I1, I8, I8, I8, V1, V1, V1, V2, V2, I1, I8, I8, V1, V1, V1, V1, V2, V2),
 }
 #: members of an ensemble block, stepped together in the lanes of four vectors (jackbox.engine.lanes): the
 #: terms of time (a shaking force's sine, two calls of libm a step) and the loops' overhead are the block's,
@@ -231,16 +232,18 @@ GA, GB, GS, VA, VB, VREST, RHS, LAM, VT, LR, LX, R, LAMA, LAMB, LEV, Y, RINV, LS
 HUMP, DLEV = LS + 4, LS + 5
 SC = LS + 6
 # rows of Scratch.n, (SN, n_dof) floats: the trial state at a step's end, the
-# state at a trial time, diag(M^-1), accelerations, the state at a step's start
-QB, QDB, QS, QDS, WINV, AF, ACC, Q0, QD0 = range(9)
-SN = 9
+# state at a trial time, diag(M^-1), accelerations, the state at a step's start, the model's ride's
+# float in and out (slot 0: the bound on the free gaps)
+QB, QDB, QS, QDS, WINV, AF, ACC, Q0, QD0, RIDE_F = range(10)
+SN = 10
 # rows of Scratch.k, (SK, n_contact) integers: the persistent contacts, contacts
 # near, hit and at rest, the LCP's active set, the new persistent set, flags (slot 0:
 # warnings pending, a WARN_* bit mask; slot 1: persistent contacts whose force pulls, a
 # bit mask, for the next contact update; slot HANDOFF_AT: why a step goes to the fallback; slot
-# PASSES_AT: the RK4 passes of the grid step's held steps)
-RIDX, NEAR, HIT, CAND, IDX, NEWREST, FLAGS = range(7)
-SK = 7
+# PASSES_AT: the RK4 passes of the grid step's held steps), the model's ride's integers in and out (slot 0:
+# the samples written, slot 1: whether it hands a step over)
+RIDX, NEAR, HIT, CAND, IDX, NEWREST, FLAGS, RIDE_K = range(8)
+SK = 8
 
 Scratch = namedtuple("Scratch", ["work", "jac", "c", "n", "k", "rest0", "A", "sub", "lu", "ext", "box"])
 ScratchType = types.NamedTuple([V2, V2, V2, V2, types.Array(I8, 2, "C"), I1, V2, V2, V2, V1, V1], Scratch)
