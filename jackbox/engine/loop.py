@@ -280,6 +280,12 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
     a contact resting on a floor with the others far from the walls takes
     no gap row at all.
 
+    With one or two contacts held, the model's ``ride`` takes the steps it can
+    first (:func:`jackbox.engine.flight.ride`: the same step on floats, the
+    same numbers); the steps it stops before come back here, and one it hands
+    over integrated (a pull, a non-finite end, a free contact near) is
+    returned as this loop returns its own (trial 1).
+
     Each step's first RK4 stage is taken here (the same call RK4 makes).
     Where its accelerations vanish (below COAST of T_AREST on every
     coordinate's lever, a hundred times their round-off at rest), the step
