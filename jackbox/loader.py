@@ -518,7 +518,7 @@ class Kernel:
         """The model's held steps on floats (:func:`jackbox.engine.flight.ride`), compiled (or loaded) on first need.
 
         The binding has a stub in its place (:data:`RIDE_STUB`): a model that
-        never holds a contact (an elastic run) never compiles it (about 3 s).
+        never holds a contact (an elastic run) never compiles it (3.8 s here).
         """
         if self._ride is None:
             path = _write_part(self._ride_path(), self._ride_text())

@@ -121,8 +121,8 @@ def test_held_steps_on_floats_and_on_arrays_give_the_same_numbers(name, over, al
     """The model's ride (held steps on one or two contacts, on floats) against the held loop's arrays
     (the kernel built with ``RIDE = False``): every sample, the end state, the contact modes and the event log
     to the bit. Which of the two takes a held step depends on the state alone (the ride stops before a step
-    it does not take: one that coasts, needs passes or a look at the gaps), so a single operation out of
-    order would show. A third kernel whose ride moves each of its steps' rates by a part in 1e9 must differ:
+    that coasts or needs passes, and hands over, integrated, one that may release or comes near a free
+    contact), so a single operation out of order would show. A third kernel whose ride moves each of its steps' rates by a part in 1e9 must differ:
     the ride takes steps of each of these runs."""
     from jackbox import loader
     from jackbox.bench import Loop

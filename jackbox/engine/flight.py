@@ -318,11 +318,8 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
         if _held_passes(qd_io, h, N_DOF, tol[_T_WALL]) != 1:
             break
         tt = tt_end if ta == t_end else accel_time_s(ta, p)
-        # the stages: a1..a4 their accelerations, v2..v4 their rates; the forces' smallest, and whether
-        # every one was a number
+        # the stages: a1..a4 their accelerations, v2..v4 their rates; their forces into ls
         a1 = a2 = a3 = a4 = v2 = v3 = v4 = qd
-        low1 = low2 = math.inf
-        numbers = True
         A11 = A22 = 1.0
         coast = False
         for s in range(4):
@@ -343,9 +340,6 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
             ls[s, 0] = x1
             if m == 2:
                 ls[s, 1] = x2
-            numbers = numbers and x1 == x1 and x2 == x2
-            low1 = min(low1, x1)
-            low2 = min(low2, x2)
             if s == 0:
                 a1 = a
                 coast = True
@@ -365,8 +359,13 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
         hs = h / _SCALE
         qb = wsum_s(q, hs, _WEIGHTS, qd, v2, v3, v4)
         qdb = wsum_s(qd, hs, _WEIGHTS, a1, a2, a3, a4)
-        # a force that might pull, or an end that is not finite: the exact loop's step
-        stop = not (numbers and low1 >= -arest / A11 and (m == 1 or low2 >= -arest / A22))
+        # a force that might pull (any stage's, NaN too), or an end that is not finite: the exact loop's step
+        stop = False
+        for j in range(m):
+            floor = -arest / (A11 if j == 0 else A22)
+            for s in range(4):
+                if not ls[s, j] >= floor:
+                    stop = True
         for d in range(N_DOF):
             if not (math.isfinite(qb[d]) and math.isfinite(qdb[d])):
                 stop = True
