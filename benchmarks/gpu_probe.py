@@ -1,6 +1,6 @@
 """Why a GPU ensemble runs at the rate it does: where the rounds' time goes, turn lengths, block size.
 
-    python benchmarks/gpu_probe.py [--out DIR] [--sweep]    (on a machine with an NVIDIA GPU and numba-cuda)
+    python benchmarks/gpu_probe.py [--out DIR] [--sweep] [--calm]    (on a machine with an NVIDIA GPU and numba-cuda)
 
 Compiles the kernels it needs (``alone`` and ``flying`` of each built-in scene,
 one process each, side by side; found cached, loaded), then, one line a study
@@ -17,6 +17,11 @@ as it is measured (and ``gpu_probe.json`` in DIR):
   under 1% on an H200), and the shortest turns' agreement with the CPU
   (1000 members x 1 s of each scene: the largest state difference, whether
   every impulse count is the same).
+
+* with ``--calm``, only where the rounds take their calm steps (``gpu.CALM``:
+  in a launch of their own for the members the lean flight stopped near
+  contact, in every member's flight, nowhere), shaken and drop e = 0.6, each
+  traced and not.
 
 Figures are member-steps per second of the whole study, one sample each (a
 traced study is slower by its synchronisations): a probe, not the benchmark
@@ -40,10 +45,11 @@ ALIKE = ("shaken", {}, 100_000, 10.0)
 
 
 def rate(study, rounds=True, block=gpu.BLOCK, chunk=gpu.CHUNK, alone=gpu.ALONE, traced=False, perturb=True,
-         event=gpu.EVENT_TURN, held=gpu.HELD_TURN) -> dict:
+         event=gpu.EVENT_TURN, held=gpu.HELD_TURN, calm=gpu.CALM) -> dict:
     """One study's rate with these settings (each call sets all of them; the defaults are jackbox's)."""
     name, over, n, t = study
     gpu.ROUNDS, gpu.BLOCK, gpu.CHUNK, gpu.ALONE, gpu.EVENT_TURN, gpu.HELD_TURN = rounds, block, chunk, alone, event, held
+    gpu.CALM = calm
     gpu.TRACE = [] if traced else None
     t0 = time.perf_counter()
     e = E.ensemble(load_scene(name, over), n, t_end=t, perturb={"theta_jack": 1e-6} if perturb else None,
@@ -55,9 +61,11 @@ def rate(study, rounds=True, block=gpu.BLOCK, chunk=gpu.CHUNK, alone=gpu.ALONE, 
            "completed": int(e.completed.sum())}
     if traced:
         trace, gpu.TRACE = gpu.TRACE, None
-        row["traced"] = {"rounds": len(trace), **{key: sum(r.get(key, 0.0) for r in trace)
-                                                  for key in ("start", "fly", "alone_event", "alone_free", "alone_held")},
-                         **{"listed_" + key: sum(r[key] for r in trace) for key in ("event", "free", "held")}}
+        row["traced"] = {"rounds": len(trace),
+                         **{key: sum(r.get(key, 0.0) for r in trace)
+                            for key in ("start", "fly", "calming", "alone_event", "alone_free", "alone_held")},
+                         **{"listed_" + key: sum(r.get(key, 0) for r in trace)
+                            for key in ("event", "free", "held", "calm")}}
         print(json.dumps(row), flush=True)
         row["trace"] = trace
         return row
@@ -70,12 +78,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("."))
     parser.add_argument("--sweep", action="store_true", help="the turn lengths traced, and a block size of 128")
+    parser.add_argument("--calm", action="store_true", help="only where the rounds take their calm steps")
     args = parser.parse_args()
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     procs = [gpubench._compile(scene, name, None) for scene in ("shaken", "drop", "spring")
-             for name in ("alone", "flying")]
+             for name in ("alone", "flying", "calming")]
     compiled = [gpubench._printed(p) for p in procs]
     print(json.dumps({"compiled_side_by_side_seconds": time.perf_counter() - t0, "kernels": compiled}), flush=True)
     for name, over, _, _ in (SHAKEN, DROP):            # loaded, not timed
@@ -86,6 +95,13 @@ def main() -> None:
         rows.append(row)
         (out / "gpu_probe.json").write_text(json.dumps(rows, indent=1) + "\n")
 
+    if args.calm:
+        for study in (SHAKEN, DROP):
+            for calm in (gpu.APART, gpu.IN_FLIGHT, gpu.NOWHERE, gpu.APART):
+                keep(rate(study, calm=calm))
+            for calm in (gpu.APART, gpu.IN_FLIGHT):
+                keep(rate(study, calm=calm, traced=True))
+        return
     for study in (SHAKEN, DROP):
         keep(rate(study, traced=True))
         keep(rate(study))

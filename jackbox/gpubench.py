@@ -7,7 +7,7 @@ GPU study in rounds (:func:`jackbox.engine.gpu.run_rounds`, the default: members
 near contact packed into warps of their own) and, with ``--one-go``, also each
 member from start to end in one thread (kernel ``members``):
 
-* compile: each kernel the run needs (``alone`` and ``flying`` of every
+* compile: each kernel the run needs (``alone``, ``flying`` and ``calming`` of every
   built-in scene, ``members`` with ``--one-go``, ``twins`` of shaken) compiled in a new process
   (cold: NVVM and the PTX assembler; the CPU's parts are timed apart; side by
   side, one process a kernel, while the CPU's engine compiles in this one;
@@ -60,8 +60,8 @@ SIZES = {
 DROP_OVER = {"restitution": 0.6}
 PERTURB = {"theta_jack": 1e-6}
 #: kernels compiled cold, side by side: (scene, kernel); ``members`` with --one-go only
-KERNELS = tuple((scene, name) for scene in ("shaken", "drop", "spring") for name in ("members", "alone", "flying")) \
-    + (("shaken", "twins"),)
+KERNELS = tuple((scene, name) for scene in ("shaken", "drop", "spring")
+                for name in ("members", "alone", "flying", "calming")) + (("shaken", "twins"),)
 
 
 def kernels_for(one_go: bool) -> tuple:

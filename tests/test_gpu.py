@@ -45,7 +45,7 @@ from jackbox.engine import gpu
 from jackbox.ensemble import chaos, ensemble
 from jackbox.scene import load_scene
 
-gpu.ROUNDS = json.loads(sys.argv[2])
+gpu.ROUNDS, gpu.CALM = json.loads(sys.argv[2])
 # short turns of unequal lengths, so that members are cut into many rounds at different steps
 gpu.CHUNK, gpu.ALONE, gpu.EVENT_TURN, gpu.HELD_TURN = 7, 3, 1, 5
 
@@ -66,7 +66,7 @@ for name, path, over, n, t in json.loads(sys.argv[1]):
     out[name]["where"] = b.meta["where"]
     if trace is not None:       # the last round finds no member running; the listed ones took the exact loop
         out[name]["trace"] = [trace[-1]["running"], min(r["running"] for r in trace[:-1]) if len(trace) > 1 else 1,
-                              {key: sum(r[key] for r in trace) for key in ("free", "held", "event")},
+                              {key: sum(r.get(key, 0) for r in trace) for key in ("free", "held", "event", "calm")},
                               all(("alone_" + key in r) == (r[key] > 0) for r in trace for key in ("free", "held", "event"))]
 c = chaos("drop", 2, t_end=0.3, renorm=0.1, perturb={"theta_jack": 0.3})
 d = chaos("drop", 2, t_end=0.3, renorm=0.1, perturb={"theta_jack": 0.3}, device="cuda")
@@ -102,9 +102,9 @@ dt = 1e-3
 """
 
 
-def _simulate(cases, rounds: bool) -> dict:
+def _simulate(cases, rounds: bool, calm: int) -> dict:
     env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1", PYTHONWARNINGS="ignore")
-    proc = subprocess.run([sys.executable, "-c", SIMULATED, json.dumps(cases), json.dumps(rounds)],
+    proc = subprocess.run([sys.executable, "-c", SIMULATED, json.dumps(cases), json.dumps([rounds, calm])],
                           capture_output=True, text=True,
                           env=env, timeout=1200)
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -112,10 +112,12 @@ def _simulate(cases, rounds: bool) -> dict:
 
 
 @needs_numba_cuda
-@pytest.mark.parametrize("rounds", [False, True], ids=["one-go", "rounds"])
-def test_the_gpus_kernels_give_the_cpus_numbers_on_the_simulator(tmp_path, rounds):
+@pytest.mark.parametrize("rounds, calm", [(False, 1), (True, 1), (True, 2)],
+                         ids=["one-go", "rounds", "rounds-calm-in-flight"])
+def test_the_gpus_kernels_give_the_cpus_numbers_on_the_simulator(tmp_path, rounds, calm):
     """Each member in one thread from start to end, and in rounds (fly, then the exact loop for those near
-    contact, packed): the CPU's numbers either way."""
+    contact, packed), the calm steps in a launch of their own for the members the lean flight stopped near
+    contact (gpu.APART) or in every member's flight (gpu.IN_FLIGHT): the CPU's numbers every way."""
     from .conftest import PRESCRIBED
 
     hand = tmp_path / "hand.toml"
@@ -126,7 +128,7 @@ def test_the_gpus_kernels_give_the_cpus_numbers_on_the_simulator(tmp_path, round
              ("drop", None, {"restitution": "0.6"}, 3, 0.6),       # impacts
              ("settle", str(settle), {}, 3, 0.15),                 # held contacts (in rounds: the held list)
              ("hand", str(hand), {}, 2, 0.3)]                      # a prescribed box: 3 integrated coordinates
-    out = _simulate(cases, rounds)
+    out = _simulate(cases, rounds, calm)
     for name, *_ in cases:
         assert out[name]["where"] == "GPU (numba-cuda simulator)"
         if rounds:              # the rounds' trace (benchmarks/gpu_probe.py) changes no number
@@ -134,6 +136,10 @@ def test_the_gpus_kernels_give_the_cpus_numbers_on_the_simulator(tmp_path, round
             assert last == 0 and fewest > 0 and timed
             assert listed["event"] > 0 or name != "drop", listed        # each list taken
             assert listed["held"] > 0 or name != "settle", listed
+            if calm == 1 and name == "drop":
+                assert listed["calm"] > 0, listed           # the lean flight's near-contact list flew on
+            elif calm != 1 or name == "hand":               # (a prescribed box has no calm test)
+                assert listed["calm"] == 0, listed
         differ = [key for key, equal in out[name].items() if equal is False]
         assert not differ, f"{name}: the GPU's {', '.join(differ)} differ from the CPU's"
     assert out["drop"]["impulses"] > 0 and out["settle"]["impulses"] > 0          # the contact path ran
@@ -162,7 +168,7 @@ from jackbox.scene import load_scene
 
 kernels = loader.kernel_for(load_scene(sys.argv[1])).gpu()
 out = {}
-for name in ("members", "alone", "flying", "twins"):
+for name in gpu.KERNEL_NAMES:
     cres = gpu.compile_offline(kernels, name, output="llvm")
     ir = cres.library.get_llvm_str()
     out[name] = {"lowered": cres.signature.return_type.__class__.__name__, "allocates": "NRT_MemInfo" in ir}
@@ -190,7 +196,8 @@ def test_every_kernel_compiles_for_the_cuda_target(tmp_path, name):
                           timeout=1200)
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert out == {k: {"lowered": "NoneType", "allocates": False} for k in ("members", "alone", "flying", "twins")}
+    assert out == {k: {"lowered": "NoneType", "allocates": False}
+                   for k in ("members", "alone", "flying", "calming", "twins")}
 
 
 def test_numpy_without_row_stack_gets_the_alias_numba_cuda_registers(monkeypatch):

@@ -236,12 +236,18 @@ CHUNK, ALONE = 256, 4
 #: 1, 1, 16); shaken (1e6 x 10 s) at 1.89e9 against 1.86e9 (its steps in the exact loop are dear, not
 #: for divergence alone: 1.72e9 with turns of one step)
 HELD_TURN, EVENT_TURN = 32, 1
-#: whether a round's flight takes the steps that are not quiet but calm (the exact loop would find no event
-#: in them) itself, as an ensemble block's lanes do on the CPU, instead of listing the member for ``alone``;
-#: a kernel argument. Models without lanes (a prescribed box) have no calm test: their flights stop there.
-#: On an H100 (benchmarks/results/gpu_calm.json, one sample each) shaken (1e6 x 10 s) ran at 2.62e9
-#: member-steps/s against 1.68e9 without, drop e = 0.6 (1e5 x 3 s) at 1.38e8 against 1.28e8
-CALM = True
+#: where a round takes the steps that are not quiet but calm (the exact loop would find no event in them),
+#: as an ensemble block's lanes do on the CPU, instead of listing the member for ``alone``; a kernel
+#: argument. 0: nowhere (a flight stops at a step that is not quiet). 1 (APART): every member flies in the
+#: lean ``flying``, which stops there, and those it listed near contact go on in ``calming`` (the flight
+#: with the calm test), packed into warps of their own: the calm test's code (255 registers where the lean
+#: flight needs 160-184) slows only the members that need it. 2 (IN_FLIGHT): every member flies in
+#: ``calming``. Models without lanes (a prescribed box) have no calm test: their flights stop there.
+#: On an H100 (benchmarks/results/gpu_calm.json, one sample each) the calm test in the flight ran shaken
+#: (1e6 x 10 s) at 2.62e9 member-steps/s against 1.68e9 without, drop e = 0.6 (1e5 x 3 s) at 1.38e8 against
+#: 1.28e8
+NOWHERE, APART, IN_FLIGHT = 0, 1, 2
+CALM = APART
 #: a list to append one row a round to (what each launch took and how many members it ran;
 #: benchmarks/gpu_probe.py), or None. Tracing synchronises after every launch, so it is for diagnosis only
 TRACE = None
@@ -368,6 +374,7 @@ _ride = _gpu.device(_gpu.ride_none)
 _step, _update, _crossing, _release, _fallback, _hold = _gpu.stage_devices()
 _gpu_start, _gpu_alone, _gpu_fly = (_gpu.device(f) for f in (_gpu.member_start, _gpu.member_alone, _gpu.member_fly))
 _N, _C, _NP, _NT, _NR = {N_DOF}, {N_CONTACT}, {N_PARAM}, {N_TOL}, {N_REST}
+_HAS_CALM = {HAS_CALM}
 
 
 @_cuda.jit(device=True, inline="always")
@@ -447,31 +454,73 @@ def alone(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, 
     _copy(TALLY[j], tally)
 
 
-@_cuda.jit(cache=True)
-def flying(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, LIST,
-           COUNT, chunk, go_calm):
-    """A round of free flight for every member; those that need the exact loop are listed, the free ones
-    from LIST's start (COUNT[0] of them), the held ones back from the end of its first half (COUNT[2]), those
-    with an event in their next step from its second half on (COUNT[3]); those still running are counted
-    (COUNT[1])."""
-    j = _cuda.grid(1)
-    if j >= Q.shape[0]:
-        return
+@_cuda.jit(device=True)
+def _calm_none(t, t_next, q, qd, qn, vn, p, tol, ext):
+    """(the lean flight has no calm test: it stops at a step that is not quiet)"""
+    return False, 0.0
+
+
+@_cuda.jit(device=True, inline="always")
+def _fly(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, j,
+         calm_test, chunk, go_calm):
+    """Member j's flight (:func:`member_fly`), its rows written back where it still runs: what it needs next."""
     q, qd, p, tol = _rows(Q, QD, P, TOL, j)
-    how = _gpu_fly(_model(), calm, q, qd, REST[j], p, tol, TALLY[j], STATE[j], dt, n_steps, sample_steps, samp_q[j],
-                   samp_qd[j], fin_q[j], fin_qd[j], fin[j], _cuda.local.array(_N, _f8), _cuda.local.array(_N, _f8),
-                   _samples(), _cuda.local.array(6, _f8), _cuda.local.array(_C, _f8), _cuda.local.array(2, _f8), chunk,
-                   go_calm)
+    how = _gpu_fly(_model(), calm_test, q, qd, REST[j], p, tol, TALLY[j], STATE[j], dt, n_steps, sample_steps,
+                   samp_q[j], samp_qd[j], fin_q[j], fin_qd[j], fin[j], _cuda.local.array(_N, _f8),
+                   _cuda.local.array(_N, _f8), _samples(), _cuda.local.array(6, _f8), _cuda.local.array(_C, _f8),
+                   _cuda.local.array(2, _f8), chunk, go_calm)
     if how != {FINISHED}:
         _copy(Q[j], q)
         _copy(QD[j], qd)
-        _cuda.atomic.add(COUNT, 1, 1)
-        if how == {NEEDS_CARE}:
+    return how
+
+
+@_cuda.jit(device=True, inline="always")
+def _list(how, j, n, LIST, COUNT, care_back):
+    """Member j on the list of what it needs: near contact from LIST's start (COUNT[0]; with care_back, back
+    from its end, COUNT[4]), held back from the end of its first half (COUNT[2]), an event in its next step
+    from its second half on (COUNT[3])."""
+    if how == {NEEDS_CARE}:
+        if care_back:
+            LIST[2 * n - 1 - _cuda.atomic.add(COUNT, 4, 1)] = j
+        else:
             LIST[_cuda.atomic.add(COUNT, 0, 1)] = j
-        elif how == {HELD}:
-            LIST[Q.shape[0] - 1 - _cuda.atomic.add(COUNT, 2, 1)] = j
-        elif how == {EVENT}:
-            LIST[Q.shape[0] + _cuda.atomic.add(COUNT, 3, 1)] = j
+    elif how == {HELD}:
+        LIST[n - 1 - _cuda.atomic.add(COUNT, 2, 1)] = j
+    elif how == {EVENT}:
+        LIST[n + _cuda.atomic.add(COUNT, 3, 1)] = j
+
+
+@_cuda.jit(cache=True)
+def flying(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, LIST,
+           COUNT, chunk):
+    """A round of free flight for every member, the lean one (no calm test): those that need more are listed
+    (:func:`_list`), those still running counted (COUNT[1])."""
+    j = _cuda.grid(1)
+    if j >= Q.shape[0]:
+        return
+    how = _fly(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, j,
+               _calm_none, chunk, 0)
+    if how != {FINISHED}:
+        _cuda.atomic.add(COUNT, 1, 1)
+        _list(how, j, Q.shape[0], LIST, COUNT, False)
+
+
+@_cuda.jit(cache=True)
+def calming(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, LIST,
+            COUNT, n_listed, chunk):
+    """The flight with the calm test (steps that are not quiet but calm are taken here): for the n_listed
+    members at LIST's start (those the lean flight listed near contact; the ones still near contact listed
+    back from LIST's end), or for every member (n_listed < 0: a round's flight, listed as ``flying`` lists)."""
+    k = _cuda.grid(1)
+    if k >= (Q.shape[0] if n_listed < 0 else n_listed):
+        return
+    j = k if n_listed < 0 else LIST[k]
+    how = _fly(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, j,
+               calm, chunk, 1)
+    if n_listed < 0 and how != {FINISHED}:
+        _cuda.atomic.add(COUNT, 1, 1)
+    _list(how, j, Q.shape[0], LIST, COUNT, n_listed >= 0)
 
 
 @_cuda.jit(cache=True)
@@ -530,7 +579,8 @@ def kernel_text(model_text: str, flight_text: str, constants: dict) -> str:
                        "LOG_SIZE": LOG_SIZE, "TALLY": TALLY, "FINISHED": FINISHED, "NEEDS_CARE": NEEDS_CARE,
                        "HELD": HELD, "EVENT": EVENT}.items():
         filled = filled.replace("{" + key + "}", str(value))
-    return model_text + "\n\n" + flight_text + calm_text(model_text) + filled
+    calm_test = calm_text(model_text)
+    return model_text + "\n\n" + flight_text + calm_test + filled.replace("{HAS_CALM}", str(calm_test != CALM_STUB))
 
 
 def kernel_constants(module) -> dict:
@@ -582,7 +632,8 @@ def _signatures():
     I1, I2 = types.Array(i8, 1, "C"), types.Array(i8, 2, "C")
     rounds = (V2, V2, V2, V2, I2, V2, I2, f8, i8, I1, V3, V3, V2, V2, V2, I1)
     return {"members": (V2, V2, V2, V2, f8, i8, I1, V3, V3, V2, V2, V2), "alone": rounds + (i8, i8, i8, i8),
-            "flying": rounds + (I1, i8, i8), "twins": (V2, V2, V2, V2, V2, V2, f8, i8, i8, V1, V2, V2)}
+            "flying": rounds + (I1, i8), "calming": rounds + (I1, i8, i8),
+            "twins": (V2, V2, V2, V2, V2, V2, f8, i8, i8, V1, V2, V2)}
 
 
 #: how an ensemble runs: False, each member from start to end in one thread (kernel ``members``); True,
@@ -594,16 +645,25 @@ ROUNDS = True
 
 
 #: the kernels of a kernel file
-KERNEL_NAMES = ("members", "alone", "flying", "twins")
+KERNEL_NAMES = ("members", "alone", "flying", "calming", "twins")
 
 
-def kind_kernels(kind: str, rounds: bool | None = None) -> tuple[str, ...]:
-    """The kernels a study of this kind runs ("ensemble" or "chaos"; a kernel's name: that kernel)."""
+def calm_mode(kernels) -> int:
+    """Where a model's rounds take their calm steps (:data:`CALM`; NOWHERE for a model without a calm test)."""
+    return CALM if kernels._HAS_CALM else NOWHERE
+
+
+def kind_kernels(kind: str, rounds: bool | None = None, calm: int | None = None) -> tuple[str, ...]:
+    """The kernels a study of this kind runs ("ensemble" or "chaos"; a kernel's name: that kernel), for a
+    model whose rounds take their calm steps as ``calm`` says (None: :data:`CALM`)."""
     if kind in KERNEL_NAMES:
         return (kind,)
     if kind == "chaos":
         return ("twins",)
-    return ("alone", "flying") if (ROUNDS if rounds is None else rounds) else ("members",)
+    if not (ROUNDS if rounds is None else rounds):
+        return ("members",)
+    calm = CALM if calm is None else calm
+    return ("alone", "calming") if calm == IN_FLIGHT else ("alone", "flying", "calming") if calm else ("alone", "flying")
 
 
 def is_cached(kernels, kind: str, rounds: bool | None = None) -> bool:
@@ -612,14 +672,14 @@ def is_cached(kernels, kind: str, rounds: bool | None = None) -> bool:
         return True
     path = Path(kernels.__file__)
     return all(getattr(kernels, name).overloads or any(path.parent.glob(f"__pycache__/{path.stem}.{name}-*.nbi"))
-               for name in kind_kernels(kind, rounds))
+               for name in kind_kernels(kind, rounds, calm_mode(kernels)))
 
 
 def prepare(kernels, kind: str, rounds: bool | None = None) -> str:
     """Compile (or load from the cache) the kernel of a study of this kind: "memory", "hit" or "miss"."""
     if _simulated():
         return "simulator"
-    names = kind_kernels(kind, rounds)
+    names = kind_kernels(kind, rounds, calm_mode(kernels))
     if all(getattr(kernels, name).overloads for name in names):
         return "memory"
     hit = is_cached(kernels, kind, rounds)
@@ -678,8 +738,9 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
     """:func:`run_members` in rounds.
 
     In rounds, so that a member near contact does not hold up the 31 others
-    of its warp: every member flies while it is quiet (kernel ``fly``, at most
-    CHUNK steps), then the members that need the exact loop take it, listed
+    of its warp: every member flies while it is quiet (kernel ``flying``, at most
+    CHUNK steps), those it stopped near contact fly on with the calm test
+    (kernel ``calming``, :data:`CALM`), then the members that need the exact loop take it, listed
     and packed into warps of their own (kernel ``alone``): those with an
     event in their next step for EVENT_TURN steps, those near contact for
     ALONE steps, those held in a contact for HELD_TURN steps, each list in a
@@ -700,12 +761,13 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
     steps = cuda.to_device(np.ascontiguousarray(sample_steps, np.int64), stream=stream)
     outs = [cuda.to_device(a, stream=stream) for a in (samp_q, samp_qd, fin_q, fin_qd, fin)]
     LIST = cuda.to_device(np.zeros(2 * n, np.int64), stream=stream)
-    count, zero = np.zeros(4, np.int64), np.zeros(4, np.int64)
+    count, zero = np.zeros(5, np.int64), np.zeros(5, np.int64)
     COUNT = cuda.to_device(count, stream=stream)
     args = (*dev, REST, TALLY_, STATE, float(dt), int(n_steps), steps, *outs, LIST)
     grid = (n + BLOCK - 1) // BLOCK
     trace, clock = TRACE, time.perf_counter
     t0 = clock()
+    calm = calm_mode(kernels)
     kernels.alone[grid, BLOCK, stream](*args, 0, -1, HELD_TURN, ALONE)
     while True:
         COUNT.copy_to_device(zero, stream=stream)
@@ -713,7 +775,10 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
             stream.synchronize()
             t1 = clock()
             row = {"start": t1 - t0}
-        kernels.flying[grid, BLOCK, stream](*args, COUNT, CHUNK, int(CALM))
+        if calm == IN_FLIGHT:
+            kernels.calming[grid, BLOCK, stream](*args, COUNT, -1, CHUNK)
+        else:
+            kernels.flying[grid, BLOCK, stream](*args, COUNT, CHUNK)
         COUNT.copy_to_host(count, stream=stream)
         stream.synchronize()
         if trace is not None:
@@ -723,8 +788,17 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
             trace.append(row)
         if count[1] == 0:
             break
-        free, held, event = int(count[0]), int(count[2]), int(count[3])
-        for first, listed, turn, key in ((n, event, EVENT_TURN, "alone_event"), (0, free, ALONE, "alone_free"),
+        near, first_near = int(count[0]), 0
+        if calm == APART and near > 0:          # those near contact fly on with the calm test
+            kernels.calming[(near + BLOCK - 1) // BLOCK, BLOCK, stream](*args, COUNT, near, CHUNK)
+            COUNT.copy_to_host(count, stream=stream)
+            stream.synchronize()
+            near, first_near = int(count[4]), 2 * n - int(count[4])
+            if trace is not None:
+                t1, t0 = t0, clock()
+                row.update(calming=t0 - t1, calm=int(count[0]), event=int(count[3]))
+        held, event = int(count[2]), int(count[3])
+        for first, listed, turn, key in ((n, event, EVENT_TURN, "alone_event"), (first_near, near, ALONE, "alone_free"),
                                          (n - held, held, ALONE, "alone_held")):
             if listed > 0:
                 kernels.alone[(listed + BLOCK - 1) // BLOCK, BLOCK, stream](*args, first, listed, HELD_TURN, turn)
@@ -732,6 +806,8 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
                     stream.synchronize()
                     t1, t0 = t0, clock()
                     row[key] = t0 - t1
+        if trace is not None:
+            row["free"] = near
     for host, out in zip((samp_q, samp_qd, fin_q, fin_qd, fin), outs):
         out.copy_to_host(host, stream=stream)
     stream.synchronize()
