@@ -318,14 +318,22 @@ INSIDE_LIMIT = 1e-6
 INSIDE_SAMPLES = 101
 
 
+#: states :func:`inside` checks at once (1e6 members' final states in one block took 1.1 s on 2 cores)
+INSIDE_BLOCK = 4096
+
+
 def inside(scene: Scene, Q: np.ndarray, P: dict) -> np.ndarray:
     """Which of the states Q (n, 6) have a gap below -INSIDE_LIMIT L; P: parameter values, floats or (n,) rows."""
     n = Q.shape[0]
     points = np.broadcast_to(jack_points(scene, P), (n, len(scene.points), 2))
     L, w = (np.broadcast_to(np.asarray(P[k], float), (n,)) for k in ("L", "w_box"))
+    out = np.empty(n, bool)
     with np.errstate(invalid="ignore"):
-        gaps = contact_gaps_many(Q, points, L, w, scene.has_ground_contacts)
-        return ~(gaps.min(axis=1) >= -INSIDE_LIMIT * L)
+        for a in range(0, n, INSIDE_BLOCK):        # (in blocks: the temporaries stay in the cache)
+            b = a + INSIDE_BLOCK
+            gaps = contact_gaps_many(Q[a:b], points[a:b], L[a:b], w[a:b], scene.has_ground_contacts)
+            out[a:b] = ~(gaps.min(axis=1) >= -INSIDE_LIMIT * L[a:b])
+    return out
 
 
 def check_inside(run: Run, t: np.ndarray, q: np.ndarray) -> None:

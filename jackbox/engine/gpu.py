@@ -109,6 +109,11 @@ def _numpy_for_numba_cuda() -> None:
 #: jackbox.engine.LOOPS): NVVM would inline the whole call tree into the kernel and take minutes
 #: optimising it (7.5 min for the members kernel, against 27 s with these out of line)
 OUT_OF_LINE = ("rk4", "update_contacts", "first_crossing", "first_release", "fallback_step", "hold", "run_segment")
+#: more functions kept out of line (engine helpers and the model's generated functions, called from many
+#: places: inlined at each, they are most of the kernel's PTX), by name; read when a kernel file is made
+#: (its text names them, so a kernel compiled with other ones is another file)
+MORE_OUT_OF_LINE = tuple(os.environ.get("JACKBOX_GPU_OUT_OF_LINE", "").split(",")) if os.environ.get(
+    "JACKBOX_GPU_OUT_OF_LINE") else ()
 
 
 def device(fn):
@@ -122,7 +127,8 @@ def device(fn):
             clone = pytypes.FunctionType(py.__code__, _shadow(py.__module__), py.__name__, py.__defaults__,
                                          py.__closure__)
             clone.__module__, clone.__qualname__, clone.__doc__ = py.__module__, py.__qualname__, py.__doc__
-            _devices[key] = _typed_once(_cuda().jit(device=True)(clone), py.__name__ in OUT_OF_LINE)
+            _devices[key] = _typed_once(_cuda().jit(device=True)(clone),
+                                        py.__name__ in OUT_OF_LINE or py.__name__ in MORE_OUT_OF_LINE)
     return _devices[key]
 
 
@@ -181,6 +187,8 @@ def to_device(namespace: dict) -> None:
             namespace[name] = device(value)
         elif isinstance(value, pytypes.FunctionType) and value.__module__ == namespace["__name__"]:
             namespace[name] = cuda.jit(device=True)(value)
+            if name in MORE_OUT_OF_LINE:
+                namespace[name] = _typed_once(namespace[name], True)
 
 
 def exact_on(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total, record_every, out, n_rec, log,
@@ -580,6 +588,8 @@ def kernel_text(model_text: str, flight_text: str, constants: dict) -> str:
                        "HELD": HELD, "EVENT": EVENT}.items():
         filled = filled.replace("{" + key + "}", str(value))
     calm_test = calm_text(model_text)
+    if MORE_OUT_OF_LINE:
+        filled += f"\n# also out of line: {', '.join(MORE_OUT_OF_LINE)}\n"
     return model_text + "\n\n" + flight_text + calm_test + filled.replace("{HAS_CALM}", str(calm_test != CALM_STUB))
 
 
