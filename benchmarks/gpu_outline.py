@@ -3,11 +3,11 @@
     python benchmarks/gpu_outline.py [--out DIR]    (on a machine with an NVIDIA GPU and numba-cuda)
 
 NVVM inlines every device function that is not marked ``noinline``
-(:data:`jackbox.engine.gpu.OUT_OF_LINE`): the model's generated functions and
-the engine's small solvers are copied into each of their callers, which is
-most of the ``alone`` kernel's PTX (shaken: 110k instructions inlined, 41k
-with the functions below out of line; NVVM 26 s against 11 on 2 cores). This
-measures both ways on one machine, in one run:
+(:data:`jackbox.engine.gpu.OUT_OF_LINE`, :data:`~jackbox.engine.gpu.HELPERS_OUT_OF_LINE`):
+inlined, the model's generated functions and the engine's small solvers are
+copied into each of their callers, which was most of the ``alone`` kernel's
+PTX (shaken: 110k instructions inlined, 41k with them out of line; NVVM 26 s
+against 11 on 2 cores). This measures both ways on one machine, in one run:
 
 * compile: ``alone``, ``flying`` and ``calming`` of shaken and drop,
   each way, every kernel cold in a process of its own, all side by side (the
@@ -31,11 +31,10 @@ import time
 import warnings
 from pathlib import Path
 
-#: the functions kept out of line besides gpu.OUT_OF_LINE (the model's and the engine's, called from many
-#: places); ``accel`` stays inline (the stages of every step call it)
-MORE = ("contact_rows,phi,inverse_mass,gap_rate,held_accel,held_solve,project_rows,lcp,enumerate_sets,"
-        "solve_dense,factor_rows,solve_rows,contact_matrix,add_response")
-WAYS = {"inline": "", "out_of_line": MORE}
+from jackbox.engine.gpu import HELPERS_OUT_OF_LINE
+
+#: the two ways: the helpers inlined (as before 2026-11-27), or out of line (jackbox's default)
+WAYS = {"inline": "", "out_of_line": ",".join(HELPERS_OUT_OF_LINE)}
 KERNELS = [(scene, name) for scene in ("shaken", "drop") for name in ("alone", "flying", "calming")]
 
 RUN = r"""
@@ -92,7 +91,7 @@ def main() -> None:
         (args.out / "gpu_outline.json").write_text(json.dumps(rows, indent=1) + "\n")
 
     base = {k: v for k, v in os.environ.items() if k != "JACKBOX_GPU_OUT_OF_LINE"} | {"PYTHONWARNINGS": "ignore"}
-    envs = {way: base | ({"JACKBOX_GPU_OUT_OF_LINE": more} if more else {}) for way, more in WAYS.items()}
+    envs = {way: base | {"JACKBOX_GPU_OUT_OF_LINE": more} for way, more in WAYS.items()}
     t0 = time.perf_counter()
     procs = [(way, scene, name, gpubench._compile(scene, name, envs[way])) for way in WAYS for scene, name in KERNELS]
     from jackbox import ensemble as E

@@ -172,6 +172,11 @@ for name in gpu.KERNEL_NAMES:
     cres = gpu.compile_offline(kernels, name, output="llvm")
     ir = cres.library.get_llvm_str()
     out[name] = {"lowered": cres.signature.return_type.__class__.__name__, "allocates": "NRT_MemInfo" in ir}
+    if name == "alone":         # which of the functions kept out of line (and accel) are defined, and noinline
+        defined = [f for mod in cres.library.modules for f in mod.functions if not f.is_declaration]
+        names = gpu.OUT_OF_LINE + gpu.MORE_OUT_OF_LINE + ("accel",)
+        out["out_of_line"] = {n: sorted({"noinline" in f.attributes for f in defined if f"{len(n)}{n}B" in f.name})
+                              for n in names}
 print(json.dumps(out))
 """
 
@@ -180,7 +185,9 @@ print(json.dumps(out))
 @pytest.mark.parametrize("name", ["shaken", "drop", "hand"])
 def test_every_kernel_compiles_for_the_cuda_target(tmp_path, name):
     """The kernels the CUDA target compiles, not only the simulator's Python: every one types and lowers, for a
-    scene in a box, one with a ground and a prescribed box, and none allocates (scratch of fixed size).
+    scene in a box, one with a ground and a prescribed box, and none allocates (scratch of fixed size). The
+    functions kept out of line (the stages, the helpers called from many places: half the compile time of
+    ``alone``) are marked noinline for NVVM, and ``accel`` is not.
 
     A GPU's compiler refuses what the simulator runs: a local array whose shape is a sum (``_N + 3``) is not
     a constant to it, and every kernel failed so with the simulator's tests passing.
@@ -196,6 +203,10 @@ def test_every_kernel_compiles_for_the_cuda_target(tmp_path, name):
                           timeout=1200)
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = json.loads(proc.stdout.strip().splitlines()[-1])
+    kept = out.pop("out_of_line")       # NVVM keeps the stages and the helpers called from many places out of line
+    assert kept.pop("accel") == [False]                                 # (every stage calls accel: inlined)
+    assert all(where in ([True], []) for where in kept.values()), kept         # ([]: not called in this kernel)
+    assert kept["contact_rows"] == kept["lcp"] == kept["update_contacts"] == [True], kept
     assert out == {k: {"lowered": "NoneType", "allocates": False}
                    for k in ("members", "alone", "flying", "calming", "twins")}
 

@@ -109,11 +109,19 @@ def _numpy_for_numba_cuda() -> None:
 #: jackbox.engine.LOOPS): NVVM would inline the whole call tree into the kernel and take minutes
 #: optimising it (7.5 min for the members kernel, against 27 s with these out of line)
 OUT_OF_LINE = ("rk4", "update_contacts", "first_crossing", "first_release", "fallback_step", "hold", "run_segment")
-#: more functions kept out of line (engine helpers and the model's generated functions, called from many
-#: places: inlined at each, they are most of the kernel's PTX), by name; read when a kernel file is made
-#: (its text names them, so a kernel compiled with other ones is another file)
-MORE_OUT_OF_LINE = tuple(os.environ.get("JACKBOX_GPU_OUT_OF_LINE", "").split(",")) if os.environ.get(
-    "JACKBOX_GPU_OUT_OF_LINE") else ()
+#: more functions kept out of line: the engine's small solvers and the model's generated functions, each
+#: called from many places. Inlined at each, they were most of the ``alone`` kernel's code (shaken: 110k PTX
+#: instructions against 41k) and of its compile time: on an H100 machine, 12 kernels cold side by side,
+#: ``alone`` took 130-144 s inlined and 56 s so, with the same speed (shaken 1e6 members 3.13-3.17e9
+#: member-steps/s inlined, 3.17-3.19e9 so; drop e = 0.6 1.60-1.61e8 and 1.57-1.60e8) and the same numbers
+#: (benchmarks/results/gpu_outline.json). ``accel`` stays inline: every stage of every step calls it.
+#: ``JACKBOX_GPU_OUT_OF_LINE`` (names, comma-separated; empty for none) replaces them (benchmarks/gpu_outline.py);
+#: a kernel file names them, so kernels compiled with others are other files
+HELPERS_OUT_OF_LINE = ("contact_rows", "phi", "inverse_mass", "gap_rate", "held_accel", "held_solve", "project_rows",
+                       "lcp", "enumerate_sets", "solve_dense", "factor_rows", "solve_rows", "contact_matrix",
+                       "add_response")
+MORE_OUT_OF_LINE = tuple(name for name in os.environ.get("JACKBOX_GPU_OUT_OF_LINE", ",".join(HELPERS_OUT_OF_LINE))
+                         .split(",") if name)
 
 
 def device(fn):
@@ -588,8 +596,7 @@ def kernel_text(model_text: str, flight_text: str, constants: dict) -> str:
                        "HELD": HELD, "EVENT": EVENT}.items():
         filled = filled.replace("{" + key + "}", str(value))
     calm_test = calm_text(model_text)
-    if MORE_OUT_OF_LINE:
-        filled += f"\n# also out of line: {', '.join(MORE_OUT_OF_LINE)}\n"
+    filled += f"\n# also out of line: {', '.join(MORE_OUT_OF_LINE) or '(nothing)'}\n"
     return model_text + "\n\n" + flight_text + calm_test + filled.replace("{HAS_CALM}", str(calm_test != CALM_STUB))
 
 
