@@ -300,6 +300,30 @@ def test_a_start_inside_a_wall_is_refused(monkeypatch):
         E.ensemble("shaken", 11, sweep={"a_jack": (1.0, 6.0)}, t_end=0.1)
 
 
+@pytest.mark.parametrize("name", ["shaken", "drop"])
+def test_final_states_inside_a_wall_are_found_in_every_block(name, monkeypatch):
+    """api.inside checks the final states of a study in blocks (1e6 at once took a second): its verdict on
+    each state is the one-state geometry's (scene.contact_gaps, every gap and the ground's), whatever block the
+    state falls in, each member with its own jack size."""
+    from jackbox import api
+    from jackbox.scene import contact_gaps
+
+    monkeypatch.setattr(api, "INSIDE_BLOCK", 7)        # blocks of 7: 100 states end in a short one
+    scene = jackbox.load_scene(name)
+    rng = np.random.default_rng(3)
+    n = 100
+    P = {k: np.full(n, v) for k, v in zip(scene.param_names, scene.param_values)}
+    Q = scene.q0 + rng.normal(0.0, 1.0, (n, 6)) * np.array([0.2, 0.2, 0.0, 0.6, 0.6, 0.0]) * P["L"][0] \
+        + rng.normal(0.0, 1.0, (n, 6)) * np.array([0.0, 0.0, 0.5, 0.0, 0.0, 1.5])
+    P["a_jack"] = P["a_jack"] * rng.uniform(0.5, 1.5, n)
+    base = scene.param_values[scene.param_names.index("a_jack")]
+    L, w = P["L"][0], P["w_box"][0]
+    want = np.array([contact_gaps(q, scene.points * (a / base), L, w, scene.has_ground_contacts).min()
+                     < -api.INSIDE_LIMIT * L for q, a in zip(Q, P["a_jack"])])
+    assert 10 < want.sum() < n - 10                   # both kinds, in many blocks
+    np.testing.assert_array_equal(api.inside(scene, Q, P), want)
+
+
 def test_chaos_of_free_flight_is_the_linear_growth():
     # Before the first impact (t ~ 1.07 s) every coordinate of shaken flies freely and the
     # forces depend on t only, so a twin's offset grows linearly: dq(t) = dq0 + dqd0 t,
