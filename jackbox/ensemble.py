@@ -532,7 +532,8 @@ def _execute(fn, spec, chunk, threads, scheduler, dask_local, progress, log, ste
             bar.close()
         used = f"GPU ({gpu_engine.device_name()})" if gpu else "this process"
     seconds = time.perf_counter() - t0
-    merged = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+    # (one part, the whole study: its arrays as they are; a copy of 1e6 members' took 0.07 s)
+    merged = parts[0] if len(parts) == 1 else {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
     meta = {"jackbox": __version__, "scene": spec.scene.name, "n": n, "seed": spec.seed, "dt": spec.dt,
             "t_end": spec.t_end, "n_steps": spec.n_steps, "chunk": chunk, "where": used, "threads": n_threads,
             "run_seconds": seconds, "load_seconds": load_seconds, "kernel_cache": compiled["cache"],
