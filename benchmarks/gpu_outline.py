@@ -61,6 +61,7 @@ for name, over, n, t in (("shaken", {}, 1_000_000, 10.0), ("drop", {"restitution
             row["rounds"] = len(trace)
             row |= {key: sum(r.get(key, 0.0) for r in trace)
                     for key in ("fly", "calming", "alone_event", "alone_free", "alone_held")}
+            row |= {key: trace[-1].get(key) for key in ("calm_tests", "calm_steps", "calm_flown")}
         print(json.dumps(row), flush=True)
 for name, over in (("shaken", {}), ("drop", {"restitution": "0.6"})):
     kw = dict(t_end=0.05 if quick else 1.0, perturb={"theta_jack": 0.3})

@@ -21,7 +21,8 @@ as it is measured (and ``gpu_probe.json`` in DIR):
 * with ``--calm``, only where the rounds take their calm steps (``gpu.CALM``:
   in a launch of their own for the members the lean flight stopped near
   contact, in every member's flight, nowhere), shaken and drop e = 0.6, each
-  traced and not.
+  traced and not; a traced study also counts the calm tests, the calm steps
+  they found and the steps flown with the calm test (``calming``'s share).
 
 Figures are member-steps per second of the whole study, one sample each (a
 traced study is slower by its synchronisations): a probe, not the benchmark
@@ -65,7 +66,8 @@ def rate(study, rounds=True, block=gpu.BLOCK, chunk=gpu.CHUNK, alone=gpu.ALONE, 
                          **{key: sum(r.get(key, 0.0) for r in trace)
                             for key in ("start", "fly", "calming", "alone_event", "alone_free", "alone_held")},
                          **{"listed_" + key: sum(r.get(key, 0) for r in trace)
-                            for key in ("event", "free", "held", "calm")}}
+                            for key in ("event", "free", "held", "calm")},
+                         **{key: trace[-1].get(key) for key in ("calm_tests", "calm_steps", "calm_flown")}}
         print(json.dumps(row), flush=True)
         row["trace"] = trace
         return row

@@ -66,7 +66,8 @@ for name, path, over, n, t in json.loads(sys.argv[1]):
     out[name]["where"] = b.meta["where"]
     if trace is not None:       # the last round finds no member running; the listed ones took the exact loop
         out[name]["trace"] = [trace[-1]["running"], min(r["running"] for r in trace[:-1]) if len(trace) > 1 else 1,
-                              {key: sum(r.get(key, 0) for r in trace) for key in ("free", "held", "event", "calm")},
+                              {key: sum(r.get(key, 0) for r in trace) for key in ("free", "held", "event", "calm")}
+                              | {key: trace[-1][key] for key in ("calm_tests", "calm_steps", "calm_flown")},
                               all(("alone_" + key in r) == (r[key] > 0) for r in trace for key in ("free", "held", "event"))]
 c = chaos("drop", 2, t_end=0.3, renorm=0.1, perturb={"theta_jack": 0.3})
 d = chaos("drop", 2, t_end=0.3, renorm=0.1, perturb={"theta_jack": 0.3}, device="cuda")
@@ -140,6 +141,13 @@ def test_the_gpus_kernels_give_the_cpus_numbers_on_the_simulator(tmp_path, round
                 assert listed["calm"] > 0, listed           # the lean flight's near-contact list flew on
             elif calm != 1 or name == "hand":               # (a prescribed box has no calm test)
                 assert listed["calm"] == 0, listed
+            # each member listed for calming tests the step its lean flight stopped at; a calm step is flown
+            assert listed["calm_tests"] >= listed["calm"], listed
+            assert listed["calm_flown"] >= listed["calm_steps"] and listed["calm_tests"] >= listed["calm_steps"]
+            if name == "drop":
+                assert listed["calm_steps"] > 0, listed     # the drop's approaches have calm steps, either way
+            if name == "hand":
+                assert listed["calm_tests"] == 0, listed
         differ = [key for key, equal in out[name].items() if equal is False]
         assert not differ, f"{name}: the GPU's {', '.join(differ)} differ from the CPU's"
     assert out["drop"]["impulses"] > 0 and out["settle"]["impulses"] > 0          # the contact path ran

@@ -267,8 +267,10 @@ CALM = APART
 #: a list to append one row a round to (what each launch took and how many members it ran;
 #: benchmarks/gpu_probe.py), or None. Tracing synchronises after every launch, so it is for diagnosis only
 TRACE = None
-#: columns of a member's row of integers: step reached, status, next sample
-AT_STEP, AT_STATUS, AT_SAMPLE = 0, 1, 2
+#: columns of a member's row of integers: step reached, status, next sample; then counts that the trace
+#: reads (calm tests, the calm steps they found, steps flown with the calm test: ``calming``'s share)
+AT_STEP, AT_STATUS, AT_SAMPLE, AT_CALM_TESTS, AT_CALM_STEPS, AT_CALM_FLOWN = 0, 1, 2, 3, 4, 5
+STATE_COLUMNS = 6
 #: what member_fly says of a member: finished (or stopped), flown (quiet to the round's end or its sample),
 #: in want of the exact loop near contact, held in a contact, or with an event in its next step (the
 #: three take it in warps of their own, so that the threads of a warp take the same branches: an event's
@@ -340,12 +342,16 @@ def member_fly(model, calm, q, qd, rest, p, tol, tally, state, dt, n_steps, samp
         if i == end or go_calm == 0:
             break
         quiet, clear = calm(i * dt, (i + 1) * dt, q, qd, qb, qdb, p, tol, ext)
+        state[AT_CALM_TESTS] += 1
         if not quiet:
             break
+        state[AT_CALM_STEPS] += 1
         for d in range(model.n_dof):
             q[d] = qb[d]
             qd[d] = qdb[d]
         i += 1
+    if go_calm != 0:
+        state[AT_CALM_FLOWN] += i - state[AT_STEP]
     state[AT_STEP] = i
     if i == stop:
         arrive(model, i * dt, q, qd, p, state, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, out, box)
@@ -774,7 +780,7 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
     dev = [cuda.to_device(np.ascontiguousarray(a), stream=stream) for a in (Q0, QD0, P, TOL)]
     REST = cuda.to_device(np.zeros((n, kernels._NR), np.int64), stream=stream)
     TALLY_ = cuda.to_device(np.zeros((n, TALLY)), stream=stream)
-    STATE = cuda.to_device(np.zeros((n, 3), np.int64), stream=stream)
+    STATE = cuda.to_device(np.zeros((n, STATE_COLUMNS), np.int64), stream=stream)
     steps = cuda.to_device(np.ascontiguousarray(sample_steps, np.int64), stream=stream)
     outs = [cuda.to_device(a, stream=stream) for a in (samp_q, samp_qd, fin_q, fin_qd, fin)]
     LIST = cuda.to_device(np.zeros(2 * n, np.int64), stream=stream)
@@ -827,6 +833,11 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
             row["free"] = near
     for host, out in zip((samp_q, samp_qd, fin_q, fin_qd, fin), outs):
         out.copy_to_host(host, stream=stream)
+    if trace is not None:       # the members' counts, summed into the last round's row
+        counts = STATE.copy_to_host(stream=stream)
+        stream.synchronize()
+        row.update(calm_tests=int(counts[:, AT_CALM_TESTS].sum()), calm_steps=int(counts[:, AT_CALM_STEPS].sum()),
+                   calm_flown=int(counts[:, AT_CALM_FLOWN].sum()))
     stream.synchronize()
 
 
