@@ -27,6 +27,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import time
 import warnings
 from pathlib import Path
@@ -91,6 +92,10 @@ def main() -> None:
         print(json.dumps(row), flush=True)
         (args.out / "gpu_outline.json").write_text(json.dumps(rows, indent=1) + "\n")
 
+    # every kernel cold: a fresh jackbox cache for this run (the kernel files go there, and numba-cuda caches
+    # beside them unless NUMBA_CACHE_DIR says otherwise); the model's CPU parts compile there too, in this
+    # process while the kernels compile
+    os.environ["JACKBOX_CACHE_DIR"] = tempfile.mkdtemp(prefix="jackbox-outline-")
     base = {k: v for k, v in os.environ.items() if k != "JACKBOX_GPU_OUT_OF_LINE"} | {"PYTHONWARNINGS": "ignore"}
     envs = {way: base | {"JACKBOX_GPU_OUT_OF_LINE": more} for way, more in WAYS.items()}
     t0 = time.perf_counter()

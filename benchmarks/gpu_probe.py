@@ -2,7 +2,7 @@
 
     python benchmarks/gpu_probe.py [--out DIR] [--sweep] [--calm]    (on a machine with an NVIDIA GPU and numba-cuda)
 
-Compiles the kernels it needs (``alone`` and ``flying`` of each built-in scene,
+Compiles the kernels it needs (``alone``, ``flying`` and ``calming`` of each built-in scene,
 one process each, side by side; found cached, loaded), then, one line a study
 as it is measured (and ``gpu_probe.json`` in DIR):
 

@@ -184,9 +184,10 @@ def run_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray
                        lanes=spec.device == "cpu" and use_lanes(spec, kernel), device=spec.device)
     lost, inside = _unfinished(spec.scene, fin[:, 3], fin_q, fin_qd, rows["params"])
     fin[lost | inside, 0] = np.nan
-    return {"q": fin_q, "qd": fin_qd, "energy": fin[:, 0], "impacts": fin[:, 1].astype(np.int64),
-            "first_impact_t": fin[:, 2], "status": fin[:, 3].astype(np.int64),
-            "steps": fin[:, 4].astype(np.int64), "fallback": fin[:, 5], "warnings": fin[:, 6].astype(np.int64),
+    # (columns copied: a study of one part keeps these arrays as they are, contiguous, without all of fin)
+    return {"q": fin_q, "qd": fin_qd, "energy": fin[:, 0].copy(), "impacts": fin[:, 1].astype(np.int64),
+            "first_impact_t": fin[:, 2].copy(), "status": fin[:, 3].astype(np.int64),
+            "steps": fin[:, 4].astype(np.int64), "fallback": fin[:, 5].copy(), "warnings": fin[:, 6].astype(np.int64),
             "samples_q": samp_q, "samples_qd": samp_qd,
             "q0": rows["q0"], "qd0": rows["qd0"], "params": rows["params"]}
 
@@ -230,7 +231,7 @@ def run_chaos_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.n
     _, inside = _unfinished(spec.scene, status, fin_q, fin_qd, rows["params"])
     stretch[inside] = np.nan
     return {"stretch": stretch, "impacts": fin[:, 0].astype(np.int64), "status": status,
-            "steps": fin[:, 2].astype(np.int64), "fallback": fin[:, 3], "warnings": fin[:, 4].astype(np.int64),
+            "steps": fin[:, 2].astype(np.int64), "fallback": fin[:, 3].copy(), "warnings": fin[:, 4].astype(np.int64),
             "q": fin_q, "qd": fin_qd,
             "q0": rows["q0"], "qd0": rows["qd0"], "params": rows["params"], "offset": offset}
 
@@ -532,8 +533,10 @@ def _execute(fn, spec, chunk, threads, scheduler, dask_local, progress, log, ste
             bar.close()
         used = f"GPU ({gpu_engine.device_name()})" if gpu else "this process"
     seconds = time.perf_counter() - t0
-    # (one part, the whole study: its arrays as they are; a copy of 1e6 members' took 0.07 s)
-    merged = parts[0] if len(parts) == 1 else {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+    # (one part run here, the whole study: its arrays as they are, a copy of 1e6 members' took 0.07 s; a part
+    # from Dask is copied, which leaves no array read-only)
+    local = len(parts) == 1 and not (scheduler or dask_local)
+    merged = parts[0] if local else {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
     meta = {"jackbox": __version__, "scene": spec.scene.name, "n": n, "seed": spec.seed, "dt": spec.dt,
             "t_end": spec.t_end, "n_steps": spec.n_steps, "chunk": chunk, "where": used, "threads": n_threads,
             "run_seconds": seconds, "load_seconds": load_seconds, "kernel_cache": compiled["cache"],

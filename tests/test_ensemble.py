@@ -315,11 +315,11 @@ def test_final_states_inside_a_wall_are_found_in_every_block(name, monkeypatch):
     P = {k: np.full(n, v) for k, v in zip(scene.param_names, scene.param_values)}
     Q = scene.q0 + rng.normal(0.0, 1.0, (n, 6)) * np.array([0.2, 0.2, 0.0, 0.6, 0.6, 0.0]) * P["L"][0] \
         + rng.normal(0.0, 1.0, (n, 6)) * np.array([0.0, 0.0, 0.5, 0.0, 0.0, 1.5])
-    P["a_jack"] = P["a_jack"] * rng.uniform(0.5, 1.5, n)
-    base = scene.param_values[scene.param_names.index("a_jack")]
-    L, w = P["L"][0], P["w_box"][0]
-    want = np.array([contact_gaps(q, scene.points * (a / base), L, w, scene.has_ground_contacts).min()
-                     < -api.INSIDE_LIMIT * L for q, a in zip(Q, P["a_jack"])])
+    for key in ("a_jack", "L", "w_box"):               # each member its own jack, box and wall
+        P[key] = P[key] * rng.uniform(0.7, 1.3, n)
+    points = scene.points / scene.param_values[scene.param_names.index("a_jack")]       # (a jack of size 1)
+    want = np.array([contact_gaps(q, points * a, L, w, scene.has_ground_contacts).min() < -api.INSIDE_LIMIT * L
+                     for q, a, L, w in zip(Q, P["a_jack"], P["L"], P["w_box"])])
     assert 10 < want.sum() < n - 10                   # both kinds, in many blocks
     np.testing.assert_array_equal(api.inside(scene, Q, P), want)
 

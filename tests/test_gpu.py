@@ -141,13 +141,10 @@ def test_the_gpus_kernels_give_the_cpus_numbers_on_the_simulator(tmp_path, round
                 assert listed["calm"] > 0, listed           # the lean flight's near-contact list flew on
             elif calm != 1 or name == "hand":               # (a prescribed box has no calm test)
                 assert listed["calm"] == 0, listed
-            # each member listed for calming tests the step its lean flight stopped at; a calm step is flown
-            assert listed["calm_tests"] >= listed["calm"], listed
-            assert listed["calm_flown"] >= listed["calm_steps"] and listed["calm_tests"] >= listed["calm_steps"]
-            if name == "drop":
-                assert listed["calm_steps"] > 0, listed     # the drop's approaches have calm steps, either way
-            if name == "hand":
-                assert listed["calm_tests"] == 0, listed
+            if name == "drop":      # the drop's approaches have calm steps, either way, flown among quiet ones
+                assert 0 < listed["calm_steps"] < listed["calm_flown"], listed
+            if name == "hand":      # no calm test, no flight with it
+                assert listed["calm_tests"] == listed["calm_flown"] == 0, listed
         differ = [key for key, equal in out[name].items() if equal is False]
         assert not differ, f"{name}: the GPU's {', '.join(differ)} differ from the CPU's"
     assert out["drop"]["impulses"] > 0 and out["settle"]["impulses"] > 0          # the contact path ran
@@ -206,7 +203,8 @@ def test_every_kernel_compiles_for_the_cuda_target(tmp_path, name):
     if name == "hand":
         path = tmp_path / "hand.toml"
         path.write_text(PRESCRIBED)
-    env = {k: v for k, v in os.environ.items() if k != "NUMBA_ENABLE_CUDASIM"} | {"PYTHONWARNINGS": "ignore"}
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_ENABLE_CUDASIM", "JACKBOX_GPU_OUT_OF_LINE")} \
+        | {"PYTHONWARNINGS": "ignore"}
     proc = subprocess.run([sys.executable, "-c", LOWERED, str(path)], capture_output=True, text=True, env=env,
                           timeout=1200)
     assert proc.returncode == 0, proc.stderr[-3000:]

@@ -120,8 +120,9 @@ OUT_OF_LINE = ("rk4", "update_contacts", "first_crossing", "first_release", "fal
 HELPERS_OUT_OF_LINE = ("contact_rows", "phi", "inverse_mass", "gap_rate", "held_accel", "held_solve", "project_rows",
                        "lcp", "enumerate_sets", "solve_dense", "factor_rows", "solve_rows", "contact_matrix",
                        "add_response")
-MORE_OUT_OF_LINE = tuple(name for name in os.environ.get("JACKBOX_GPU_OUT_OF_LINE", ",".join(HELPERS_OUT_OF_LINE))
-                         .split(",") if name)
+MORE_OUT_OF_LINE = tuple(name.strip() for name in os.environ.get("JACKBOX_GPU_OUT_OF_LINE",
+                                                                  ",".join(HELPERS_OUT_OF_LINE)).split(",")
+                         if name.strip())
 
 
 def device(fn):
@@ -256,12 +257,12 @@ HELD_TURN, EVENT_TURN = 32, 1
 #: as an ensemble block's lanes do on the CPU, instead of listing the member for ``alone``; a kernel
 #: argument. 0: nowhere (a flight stops at a step that is not quiet). 1 (APART): every member flies in the
 #: lean ``flying``, which stops there, and those it listed near contact go on in ``calming`` (the flight
-#: with the calm test), packed into warps of their own: the calm test's code (255 registers where the lean
-#: flight needs 160-184) slows only the members that need it. 2 (IN_FLIGHT): every member flies in
-#: ``calming``. Models without lanes (a prescribed box) have no calm test: their flights stop there.
-#: On an H100 (benchmarks/results/gpu_calm.json, one sample each) the calm test in the flight ran shaken
-#: (1e6 x 10 s) at 2.62e9 member-steps/s against 1.68e9 without, drop e = 0.6 (1e5 x 3 s) at 1.38e8 against
-#: 1.28e8
+#: with the calm test, for up to ``chunk`` steps more), packed into warps of their own: the calm test's code
+#: (255 registers where the lean flight needs 156-182) slows only the members that need it. 2 (IN_FLIGHT):
+#: every member flies in ``calming``. Models without lanes (a prescribed box) have no calm test: their
+#: flights stop there. On an H100 (benchmarks/results/gpu_calm.json, one sample each, the helpers inlined)
+#: shaken (1e6 x 10 s) ran at 2.80e9 and 2.87e9 member-steps/s apart, 2.66e9 in the flight, 1.80e9 nowhere;
+#: drop e = 0.6 (1e5 x 3 s) at 1.57e8 and 1.60e8, 1.61e8, 1.44e8
 NOWHERE, APART, IN_FLIGHT = 0, 1, 2
 CALM = APART
 #: a list to append one row a round to (what each launch took and how many members it ran;
@@ -336,21 +337,24 @@ def member_fly(model, calm, q, qd, rest, p, tol, tally, state, dt, n_steps, samp
     never = np.int64(-1)        # (the member's samples are its own: arrive)
     model.phi(i * dt, q, p, gaps)
     clear = lowest_free(gaps, rest, model.n_contact)
+    tests = calmed = 0          # (counted here, written once: the trace reads them)
     while True:
         i, _, _ = model.fly(0.0, dt, i, end, q, qd, p, tol, clear, qb, qdb, out.t, out.q, out.qd, np.int64(0), never,
                             np.int64(1), never)
         if i == end or go_calm == 0:
             break
         quiet, clear = calm(i * dt, (i + 1) * dt, q, qd, qb, qdb, p, tol, ext)
-        state[AT_CALM_TESTS] += 1
+        tests += 1
         if not quiet:
             break
-        state[AT_CALM_STEPS] += 1
+        calmed += 1
         for d in range(model.n_dof):
             q[d] = qb[d]
             qd[d] = qdb[d]
         i += 1
     if go_calm != 0:
+        state[AT_CALM_TESTS] += tests
+        state[AT_CALM_STEPS] += calmed
         state[AT_CALM_FLOWN] += i - state[AT_STEP]
     state[AT_STEP] = i
     if i == stop:
@@ -673,6 +677,8 @@ KERNEL_NAMES = ("members", "alone", "flying", "calming", "twins")
 
 def calm_mode(kernels) -> int:
     """Where a model's rounds take their calm steps (:data:`CALM`; NOWHERE for a model without a calm test)."""
+    if CALM not in (NOWHERE, APART, IN_FLIGHT):
+        raise ValueError(f"gpu.CALM must be NOWHERE, APART or IN_FLIGHT (0, 1, 2), got {CALM!r}")
     return CALM if kernels._HAS_CALM else NOWHERE
 
 
@@ -690,12 +696,21 @@ def kind_kernels(kind: str, rounds: bool | None = None, calm: int | None = None)
 
 
 def is_cached(kernels, kind: str, rounds: bool | None = None) -> bool:
-    """Whether the kernel of a study of this kind is compiled here or in numba-cuda's cache beside its file."""
+    """Whether the kernel of a study of this kind is compiled here or in numba-cuda's cache (where its cache
+    locator looks: a ``NUMBA_CACHE_DIR`` first, else beside the kernel file)."""
     if _simulated():
         return True
     path = Path(kernels.__file__)
-    return all(getattr(kernels, name).overloads or any(path.parent.glob(f"__pycache__/{path.stem}.{name}-*.nbi"))
-               for name in kind_kernels(kind, rounds, calm_mode(kernels)))
+
+    def cached(name):
+        kernel = getattr(kernels, name)
+        index = getattr(getattr(getattr(kernel, "_cache", None), "_cache_file", None), "_index_path", None)
+        if index is not None:
+            return Path(index).exists()
+        return any(path.parent.glob(f"__pycache__/{path.stem}.{name}-*.nbi"))      # (another numba-cuda)
+
+    return all(getattr(kernels, name).overloads or cached(name) for name in kind_kernels(kind, rounds,
+                                                                                          calm_mode(kernels)))
 
 
 def prepare(kernels, kind: str, rounds: bool | None = None) -> str:
