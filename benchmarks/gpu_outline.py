@@ -83,8 +83,6 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="tiny studies (a check of the script, on the simulator)")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
-    from jackbox import gpubench
-
     rows = []
 
     def keep(row):
@@ -93,9 +91,17 @@ def main() -> None:
         (args.out / "gpu_outline.json").write_text(json.dumps(rows, indent=1) + "\n")
 
     # every kernel cold: a fresh jackbox cache for this run (the kernel files go there, and numba-cuda caches
-    # beside them unless NUMBA_CACHE_DIR says otherwise); the model's CPU parts compile there too, in this
-    # process while the kernels compile
-    os.environ["JACKBOX_CACHE_DIR"] = tempfile.mkdtemp(prefix="jackbox-outline-")
+    # beside them unless NUMBA_CACHE_DIR says otherwise), removed at the end; the model's CPU parts compile
+    # there too, in this process while the kernels compile
+    with tempfile.TemporaryDirectory(prefix="jackbox-outline-") as fresh:
+        os.environ["JACKBOX_CACHE_DIR"] = fresh
+        measure(args, keep)
+
+
+def measure(args, keep) -> None:
+    """Compile both ways side by side, then run each way in a process of its own (see the module's docstring)."""
+    from jackbox import gpubench
+
     base = {k: v for k, v in os.environ.items() if k != "JACKBOX_GPU_OUT_OF_LINE"} | {"PYTHONWARNINGS": "ignore"}
     envs = {way: base | {"JACKBOX_GPU_OUT_OF_LINE": more} for way, more in WAYS.items()}
     t0 = time.perf_counter()
