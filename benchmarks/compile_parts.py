@@ -1,6 +1,6 @@
 """Where the compile seconds go: each part of the engine, and a model's functions, from an empty cache.
 
-    python benchmarks/compile_parts.py [--scene shaken] [--out benchmarks/results]
+    python benchmarks/compile_parts.py [--scene shaken] [--alone] [--out benchmarks/results]
 
 One new process with a cache folder of its own and one compiling process
 (``JACKBOX_COMPILE_JOBS=1``) compiles, in this order, the scene's model
@@ -8,7 +8,10 @@ functions one by one (after Numba's first compile, which costs on its own),
 every loop and stage of the engine and every entry point, and times each (a
 part compiled later reuses what earlier ones compiled of their shared callees:
 the order matters, the sum does not). Writes ``compile_parts.md`` and
-``.json``. These are the costs ``jackbox.engine.COST`` and ``PART_COST``
+``.json``. ``--alone``: each engine part in a new process of its own, after
+the model's functions (what it costs when nothing before it compiled its
+callees; into ``compile_alone.md`` and ``.json``). These are the costs
+``jackbox.engine.PART_COST`` (the model's functions) and ``COST`` (alone)
 share out between two processes.
 """
 
@@ -54,35 +57,71 @@ for name in engine.ENTRIES:
 print(json.dumps(out))
 """
 
+#: one engine part (argv[2]) alone, after the model's functions
+ALONE = r"""
+import json, sys, time
+from jackbox import engine, loader
+from jackbox.scene import load_scene
+loader.kernel_for(load_scene(sys.argv[1]))
+t = time.perf_counter()
+engine.compile_part(sys.argv[2])
+print(json.dumps({sys.argv[2]: time.perf_counter() - t}))
+"""
+
+
+def run_child(code: str, *args: str) -> dict | None:
+    """A new process running ``code`` with ``args``, on an empty cache of its own; its last line's JSON."""
+    with tempfile.TemporaryDirectory(prefix="jackbox-parts-") as cache:
+        env = os.environ | {"JACKBOX_CACHE_DIR": cache, "JACKBOX_COMPILE_JOBS": "1", "JACKBOX_PROGRESS": "0"}
+        env.pop("NUMBA_DISABLE_JIT", None)
+        done = subprocess.run([sys.executable, "-c", code, *args], env=env, capture_output=True, text=True,
+                              cwd=ROOT)
+    if done.returncode != 0:
+        print(done.stderr, file=sys.stderr)
+        return None
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scene", default="shaken")
+    parser.add_argument("--alone", action="store_true", help="each engine part in a new process of its own")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
     args = parser.parse_args(argv)
     sys.path.insert(0, str(ROOT))
     from jackbox.fileio import write_atomic
 
-    with tempfile.TemporaryDirectory(prefix="jackbox-parts-") as cache:
-        env = os.environ | {"JACKBOX_CACHE_DIR": cache, "JACKBOX_COMPILE_JOBS": "1", "JACKBOX_PROGRESS": "0"}
-        env.pop("NUMBA_DISABLE_JIT", None)
-        done = subprocess.run([sys.executable, "-c", CHILD, args.scene], env=env, capture_output=True, text=True,
-                              cwd=ROOT)
-    if done.returncode != 0:
-        print(done.stderr, file=sys.stderr)
-        return 1
-    seconds = json.loads(done.stdout.strip().splitlines()[-1])
-    lines = ["# Compile time by part", "",
-             f"Measured by `python benchmarks/compile_parts.py --scene {args.scene}`: one new process, an empty "
-             f"cache, one compiling process, the parts in this order (later parts reuse what earlier ones compiled "
-             f"of shared callees).", "", "| part | seconds |", "| --- | --- |"]
+    from jackbox import engine
+
+    if args.alone:
+        seconds = {}
+        for name in (*engine.LOOPS, *engine.ENTRIES):
+            one = run_child(ALONE, args.scene, name)
+            if one is None:
+                return 1
+            seconds.update(one)
+            print(f"{name}: {one[name]:.2f} s", flush=True)
+        how = (f"Measured by `python benchmarks/compile_parts.py --scene {args.scene} --alone`: each part in a new "
+               f"process of its own with an empty cache, after the model's functions (nothing before it compiled "
+               f"its callees); one compiling process. `jackbox.engine.COST` holds these.")
+        stem = "compile_alone"
+    else:
+        seconds = run_child(CHILD, args.scene)
+        if seconds is None:
+            return 1
+        how = (f"Measured by `python benchmarks/compile_parts.py --scene {args.scene}`: one new process, an empty "
+               f"cache, one compiling process, the parts in this order (later parts reuse what earlier ones "
+               f"compiled of shared callees).")
+        stem = "compile_parts"
+    lines = ["# Compile time by part", "", how, "", "| part | seconds |", "| --- | --- |"]
     lines += [f"| {name} | {s:.2f} |" for name, s in seconds.items()]
-    lines += [f"| total | {sum(seconds.values()):.2f} |", ""]
+    lines += [] if args.alone else [f"| total | {sum(seconds.values()):.2f} |"]
+    lines.append("")
     text = "\n".join(lines)
     print(text)
     args.out.mkdir(parents=True, exist_ok=True)
-    write_atomic(args.out / "compile_parts.md", text)
-    write_atomic(args.out / "compile_parts.json", json.dumps({"scene": args.scene, "seconds": seconds}, indent=1))
+    write_atomic(args.out / f"{stem}.md", text)
+    write_atomic(args.out / f"{stem}.json", json.dumps({"scene": args.scene, "seconds": seconds}, indent=1))
     return 0
 
 

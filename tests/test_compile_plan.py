@@ -283,3 +283,28 @@ def test_is_cached_finds_the_loop_and_the_entry_point_in_the_cache(monkeypatch):
     assert loader.is_cached(kernel, "exact")
     monkeypatch.setattr(engine, "cached", lambda name: name != "exact")
     assert not loader.is_cached(kernel, "exact")
+
+
+def test_the_parts_are_shared_out_so_that_the_later_process_finishes_first():
+    # two of 3 s against three of 2 s: 6 s each; one by one, the heaviest first, ends at 7 s
+    cost = {"a": 3.0, "b": 3.0, "c": 2.0, "d": 2.0, "e": 2.0}
+    theirs = engine.share_out(cost, 0.0, 0.0)
+    assert set(theirs) in ({"a", "b"}, {"c", "d", "e"})
+    assert engine.share_out(cost, 0.0, 0.0) == theirs            # the same parts, the same split
+    # what this process does first counts: with 4 s of its own, the helper takes 8 of the 12
+    assert sum(cost[n] for n in engine.share_out(cost, 4.0, 0.0)) == 8.0
+    # a helper that would finish later than this process alone gets nothing
+    assert engine.share_out({"a": 1.0}, 0.0, 5.0) == []
+    # no part moved from the later process to the other one would end them sooner
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        cost = {f"p{i}": float(c) for i, c in enumerate(rng.uniform(0.1, 10.0, rng.integers(1, 9)))}
+        mine, start = rng.uniform(0, 5, 2)
+        theirs = set(engine.share_out(cost, mine, start))
+
+        def finish(helper):
+            load = mine + sum(c for n, c in cost.items() if n not in helper)
+            return max(load, start + sum(cost[n] for n in helper)) if helper else load
+
+        best = finish(theirs)
+        assert all(finish(theirs ^ {n}) >= best for n in cost)

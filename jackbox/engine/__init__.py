@@ -92,11 +92,14 @@ LAZY = {"release": NEED_RELEASE, "fallback": NEED_FALLBACK, "hold": NEED_HOLD}
 #: ``lazy=RESUME`` (see :func:`table`): for a run that resumes at the step that needs a stage left out
 RESUME = "resume"
 #: what each part costs to compile, in seconds on the 2-core machine of benchmarks/results/compile.md, each
-#: compiled alone after the model (benchmarks/compile_parts.py times them in a row): only to share the parts
-#: out between two processes
-COST = {"exact": 11.0, "update": 8.5, "fallback": 8.0, "crossing": 6.0, "naive": 4.5, "step": 3.6, "release": 1.6,
-        "hold": 3.0, "run_members": 7.8, "run_twin_members": 7.0, "set_up_members": 7.1, "run_exact": 0.4, "run_naive": 0.3,
-        "fill_tolerances": 0.2}
+#: compiled alone in a new process after the model (shaken; benchmarks/compile_parts.py --alone): only to
+#: share the parts out between two processes (:func:`share_out`)
+COST = {"exact": 9.8, "update": 6.0, "fallback": 9.7, "crossing": 6.0, "naive": 6.7, "step": 4.2, "release": 5.6,
+        "hold": 13.2, "run_members": 5.8, "run_member_blocks": 11.5, "run_twin_members": 6.8,
+        "run_twin_member_blocks": 12.9, "set_up_members": 4.1, "run_exact": 0.2, "run_naive": 0.2,
+        "fill_tolerances": 0.3}
+#: what a helper process costs before its first part: Python, Numba and the engine's import
+HELPER_START = 0.5
 #: a part -> the helper process compiling it now (see start)
 _helpers: dict = {}
 
@@ -210,8 +213,8 @@ def start(names, loops=(), lazy: bool = False, busy: float = 0.0) -> list[str]:
 
     Compile time is user time: on a machine with two cores or more, a second
     process compiles about half of the engine's parts that are not cached
-    (by their COST; ``busy``: seconds of other compiling this process does
-    first, the model's functions) into the cache, while this one compiles
+    (by their COST, :func:`share_out`; ``busy``: seconds of other compiling
+    this process does first, the model's functions) into the cache, while this one compiles
     the rest; :func:`prepare` then loads the helper's parts (or compiles
     them itself if the helper failed). ``JACKBOX_COMPILE_JOBS=1`` turns it
     off. Returns the parts handed out.
@@ -221,15 +224,8 @@ def start(names, loops=(), lazy: bool = False, busy: float = 0.0) -> list[str]:
     todo = [name for name in parts(names, loops, lazy) if name not in _helpers and not cached(name)]
     if not todo:
         return []
-    mine, theirs, load = [], [], busy       # the heaviest first, each to the lighter side
-    helper_load = 0.5                         # (the helper's start: Python, Numba, the engine)
-    for name in sorted(todo, key=lambda n: -COST.get(n, 1.0)):
-        if helper_load < load:
-            theirs.append(name)
-            helper_load += COST.get(name, 1.0)
-        else:
-            mine.append(name)
-            load += COST.get(name, 1.0)
+    theirs = share_out({name: COST.get(name, 1.0) for name in todo}, busy + FIRST_COMPILE,
+                       HELPER_START + FIRST_COMPILE)
     if not theirs:
         return []
     cool_binder()         # two processes at most: the engine's parts come first
@@ -242,9 +238,9 @@ def start(names, loops=(), lazy: bool = False, busy: float = 0.0) -> list[str]:
 
 
 #: seconds each model function takes to compile alone, as its own binding part (2 cores; measured by
-#: benchmarks/compile_parts.py --scene drop, after Numba's first compile): only to share them out
-PART_COST = {"inverse_mass": 0.1, "accel": 0.05, "phi": 0.2, "gap_rate": 0.3, "contact_rows": 0.5,
-             "energy": 0.1, "box_motion": 0.03, "clearance": 0.25, "flight": 1.4,
+#: benchmarks/compile_parts.py --scene shaken, after Numba's first compile): only to share them out
+PART_COST = {"inverse_mass": 0.1, "accel": 0.15, "phi": 0.2, "gap_rate": 0.3, "contact_rows": 0.4,
+             "energy": 0.1, "box_motion": 0.03, "clearance": 0.15, "flight": 1.7,
              "lanes": 0.05, "ride": 0.05}
 #: what Numba's first compile in a process costs beyond the function itself (see warm_binder)
 FIRST_COMPILE = 0.6
@@ -309,8 +305,7 @@ def start_binding(todo: dict) -> list[str]:
     """Hand about half of the model functions to compile to a helper process, before compiling the rest here.
 
     todo: function name -> its binding part's file, for the functions whose
-    machine code is not cached. Shared by PART_COST, the heaviest first, each
-    to the side that will be done sooner; the helper of :func:`warm_binder`
+    machine code is not cached. Shared by PART_COST (:func:`share_out`); the helper of :func:`warm_binder`
     if there is one (it has paid Numba's first compile already). Only when no
     helper is compiling engine parts (two cores, two processes). Returns the
     functions handed out; :func:`wait_binding` waits for one of them.
@@ -320,16 +315,9 @@ def start_binding(todo: dict) -> list[str]:
         cool_binder()
         return []
     process, _warm = _warm, None
-    cost = {name: PART_COST.get(name, 0.5) for name in todo}
-    mine = FIRST_COMPILE
-    theirs = 0.0 if process is not None else 0.5 + FIRST_COMPILE     # (a helper's start: Python, Numba)
-    share = []
-    for name in sorted(todo, key=lambda n: -cost[n]):
-        if theirs < mine:
-            share.append(name)
-            theirs += cost[name]
-        else:
-            mine += cost[name]
+    # (a warm helper has paid for its start and Numba's first compile already)
+    share = share_out({name: PART_COST.get(name, 0.5) for name in todo}, FIRST_COMPILE,
+                      0.0 if process is not None else HELPER_START + FIRST_COMPILE)
     paths = [str(Path(todo[name]).resolve()) for name in share]
     if share and process is not None:
         try:                # (lines into an empty pipe: never blocks)
@@ -385,6 +373,46 @@ def _jobs() -> int:
         return max(1, int(os.environ.get("JACKBOX_COMPILE_JOBS", "")))
     except ValueError:
         return min(2, os.cpu_count() or 1)
+
+
+#: at most this many parts are shared out by trying every split (2^n of them); more, heaviest first
+EXHAUSTIVE = 14
+
+
+def share_out(cost: dict, mine: float, theirs: float) -> list[str]:
+    """The parts a helper process compiles, so that it and this process finish as early as their costs allow.
+
+    cost: part -> seconds; mine, theirs: the seconds each process spends
+    before its first part. Every split of up to EXHAUSTIVE parts is tried and
+    the one whose later process finishes first is taken (the first such in
+    a fixed order: the same parts give the same split); more parts go one
+    by one, the heaviest first, each to the process that would finish it
+    sooner. The greedy way alone took a worse split where two ways of
+    sharing were close: a cold ``jackbox run shaken`` waited 2 s more for
+    its helper when a model function's estimate of 0.05 s tipped it.
+    Returns the helper's parts, the heaviest first (none where a helper would
+    not finish sooner than this process alone).
+    """
+    names = sorted(cost, key=lambda name: (-cost[name], name))
+    if len(names) > EXHAUSTIVE:
+        out, load, helper = [], mine, theirs
+        for name in names:
+            if helper < load:
+                out.append(name)
+                helper += cost[name]
+            else:
+                load += cost[name]
+        return out
+    total = sum(cost.values())
+    sums = [0.0] * (1 << len(names))        # sums[mask]: the cost of the parts in mask
+    best, best_mask = mine + total, 0       # none to the helper
+    for mask in range(1, 1 << len(names)):
+        low = mask & -mask
+        sums[mask] = sums[mask ^ low] + cost[names[low.bit_length() - 1]]
+        finish = max(mine + total - sums[mask], theirs + sums[mask])
+        if finish < best:
+            best, best_mask = finish, mask
+    return [name for j, name in enumerate(names) if best_mask >> j & 1]
 
 
 def prepare(names, loops=(), lazy: bool = False) -> str:
