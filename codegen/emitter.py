@@ -311,7 +311,8 @@ def _contact_rows(model: Model, inputs, names) -> list[str]:
 
 #: Tuple arithmetic of length N_DOF emitted with every model (no sympy involved), and the
 #: parameters as a tuple
-TUPLE_HELPERS = ("tuple_of", "axpy_s", "wsum_s", "params_of", "wdot_s", "row_dot_s", "respond_s", "respond2_s")
+TUPLE_HELPERS = ("tuple_of", "axpy_s", "wsum_s", "params_of", "wdot_s", "row_dot_s", "respond_s", "respond2_s",
+                 "respond4_s")
 
 
 def _tuple_helpers(n: int, n_param: int) -> list[str]:
@@ -346,6 +347,9 @@ def _tuple_helpers(n: int, n_param: int) -> list[str]:
         "def respond2_s(a, w, r1, x1, r2, x2):\n"
         '    """a + M^-1 J^T x for two contact rows r1, r2 (modes.add_response)."""\n'
         f"    return {tup(lambda i: f'a[{i}] + w[{i}] * (0.0 + r1[{i}] * x1 + r2[{i}] * x2)')}\n",
+        "def respond4_s(a, w, r1, x1, r2, x2, r3, x3, r4, x4):\n"
+        '    """a + M^-1 J^T x for four contact rows (modes.add_response)."""\n'
+        f"    return {tup(lambda i: f'a[{i}] + w[{i}] * (0.0 + r1[{i}] * x1 + r2[{i}] * x2 + r3[{i}] * x3 + r4[{i}] * x4)')}\n",
     ]
 
 

@@ -303,13 +303,13 @@ def part_entries() -> dict[str, tuple[str, ...]]:
 #: the helpers of the hot path a part compiles as njit functions (callees inlined by LLVM, or
 #: by Numba where marked), with their options
 _JITTED = {**{name: "" for name in ("tuple_of", "accel_s", "accel_time_s", "box_motion_s", "axpy_s", "wsum_s",
-                                    "wdot_s", "row_dot_s", "respond_s", "respond2_s")},
+                                    "wdot_s", "row_dot_s", "respond_s", "respond2_s", "respond4_s")},
            **{name: ', inline="always"' for name in INLINED + LANES_INLINED},
            # a lane near a wall (lanes.calm): phi_s and gap_rate_s inlined, so that LLVM computes the sine
            # and cosine of each angle once for both; no references counted (calm allocates nothing)
            **{name: ', inline="always"' for name in ("phi_s", "gap_rate_s")}, "calm": ", _nrt=False",
            # the held steps' helpers (flight.ride): each called once in its loop, LLVM inlines them
-           **{name: "" for name in ("factor2", "solve2")},
+           **{name: "" for name in ("factor2", "solve2", "factor4", "solve4", "rows4", "held_stage4", "settle4")},
            **{name: ', inline="always"' for name in ("held_stage", "settle", "contact_rows2_s")},
            "trade": ", _nrt=False"}
 

@@ -15,12 +15,13 @@ Far from every wall the exact loop hands over to :func:`fly`, which
 integrates on floats only and looks at no gap row: the broad phase
 (:mod:`jackbox.engine.broad`) bounds them, so a quiet step costs one RK4 step.
 
-With one or two contacts held, the held loop (:func:`jackbox.engine.loop.hold`)
+With one to four contacts held, the held loop (:func:`jackbox.engine.loop.hold`)
 hands its steps to :func:`ride`, the same step on floats (the model's
 ``contact_rows2_s`` and the held solve on tuples): its own part, compiled
 when a run first holds a contact (``jackbox.loader.Kernel.ride``; until then a
 stub that takes no step). A step riding a shaken floor on two tips took 0.45
-of its time on the held loop's arrays.
+of its time on the held loop's arrays, and one of a jack held in a corner of
+the shaken box on four (:func:`held_stage4`) 0.65.
 """
 
 import math
@@ -29,13 +30,13 @@ from jackbox.engine.broad import bound as _bound
 from jackbox.engine.gaps import speed_bound as _speed_bound, step_reach as _step_reach
 from jackbox.engine.impact import RANK_TOL as _RANK_TOL
 from jackbox.engine.integrator import NODES as _NODES, SCALE as _SCALE, WEIGHTS as _WEIGHTS, held_passes as _held_passes
-from jackbox.engine.records import (COAST as _COAST, DRIFT as _DRIFT, T_AREST as _T_AREST, T_EVENT as _T_EVENT,
+from jackbox.engine.records import (CARRIES as _CARRIES, COAST as _COAST, DRIFT as _DRIFT, T_AREST as _T_AREST, T_EVENT as _T_EVENT,
                                     T_GAP as _T_GAP, T_SPEED as _T_SPEED, T_WALL as _T_WALL)
 
 #: skip the gap rows of steps whose bounding circles are far from contact
 #: (the benchmark compiles a copy with False to show the gain)
 BROAD_PHASE = True
-#: take held steps on one or two contacts on floats (:func:`ride`); with False the held loop takes every
+#: take held steps on one to four contacts on floats (:func:`ride`); with False the held loop takes every
 #: held step on its arrays (the tests compile a copy so, and compare: the same numbers)
 RIDE = True
 
@@ -270,9 +271,119 @@ def settle(t, q, qd, p, w, m, k1, k2, level, drift, h):
     return q, respond2_s(qd, w, r1, x1, r2, x2)
 
 
+def factor4(w, m, r1, r2, r3, r4):
+    """The held rows' matrix (:func:`jackbox.engine.impact.contact_matrix`, entry by entry) for three or four
+    rows (m; r4 is r3 again where m = 3), factored as :func:`jackbox.engine.impact.factor_rows` factors it, its
+    operations in their order. Returns ``((r1, r2, r3, r4, L21, L31, L32, L41, L42, L43), A11, A22, A33, A44)``:
+    r the reciprocals of L's diagonal, 0 for a row that depends on those before it (a redundant set: a jack flush
+    in a corner) and its column of L 0; row 4's entries 0 where m = 3."""
+    A11, A12, A13 = wdot_s(r1, w, r1), wdot_s(r1, w, r2), wdot_s(r1, w, r3)
+    A22, A23, A33 = wdot_s(r2, w, r2), wdot_s(r2, w, r3), wdot_s(r3, w, r3)
+    A14 = A24 = A34 = A44 = 1.0
+    if m == 4:
+        A14, A24, A34, A44 = wdot_s(r1, w, r4), wdot_s(r2, w, r4), wdot_s(r3, w, r4), wdot_s(r4, w, r4)
+    f1 = f2 = f3 = f4 = 0.0
+    L21 = L31 = L32 = L41 = L42 = L43 = 0.0
+    if A11 > _RANK_TOL * A11:
+        f1 = 1.0 / math.sqrt(A11)
+        L21 = A12 * f1
+        L31 = A13 * f1
+        if m == 4:
+            L41 = A14 * f1
+    d = A22 - L21 * L21
+    if d > _RANK_TOL * A22:
+        f2 = 1.0 / math.sqrt(d)
+        L32 = (A23 - L31 * L21) * f2
+        if m == 4:
+            L42 = (A24 - L41 * L21) * f2
+    d = A33 - L31 * L31
+    d -= L32 * L32
+    if d > _RANK_TOL * A33:
+        f3 = 1.0 / math.sqrt(d)
+        if m == 4:
+            s = A34 - L41 * L31
+            L43 = (s - L42 * L32) * f3
+    if m == 4:
+        d = A44 - L41 * L41
+        d -= L42 * L42
+        d -= L43 * L43
+        if d > _RANK_TOL * A44:
+            f4 = 1.0 / math.sqrt(d)
+    return (f1, f2, f3, f4, L21, L31, L32, L41, L42, L43), A11, A22, A33, A44
+
+
+def solve4(m, f, b1, b2, b3, b4):
+    """``x`` for ``A x = b`` with A factored by :func:`factor4` (:func:`jackbox.engine.impact.solve_rows`, the same
+    operations in their order); x4 is 0 where m = 3."""
+    r1, r2, r3, r4, L21, L31, L32, L41, L42, L43 = f
+    y1 = b1 * r1
+    y2 = (b2 - L21 * y1) * r2
+    s = b3 - L31 * y1
+    y3 = (s - L32 * y2) * r3
+    if m == 4:
+        s = b4 - L41 * y1
+        s -= L42 * y2
+        x4 = (s - L43 * y3) * r4 * r4
+        x3 = (y3 - L43 * x4) * r3
+        s = y2 - L32 * x3
+        x2 = (s - L42 * x4) * r2
+        s = y1 - L21 * x2
+        s -= L31 * x3
+        return (s - L41 * x4) * r1, x2, x3, x4
+    x3 = y3 * r3
+    x2 = (y2 - L32 * x3) * r2
+    s = y1 - L21 * x2
+    return (s - L31 * x3) * r1, x2, x3, 0.0
+
+
+def rows4(t, q, qd, p, m, k1, k2, k3, k4):
+    """The held rows k1..k4 at (t, q, qd) as :func:`held_stage` reads two (where m = 3, r4 is r3 again)."""
+    for c in range(2):      # (one call in a loop: contact_rows2_s, inlined, is compiled once here, not twice)
+        ra, rb = contact_rows2_s(t, q, qd, p, k1 if c == 0 else k3, k2 if c == 0 else k4, c == 0 or m == 4)
+        if c == 0:
+            r1, r2 = ra, rb
+    return r1, r2, ra, rb
+
+
+def held_stage4(t, q, qd, p, tt, w, m, k1, k2, k3, k4):
+    """:func:`held_stage` for three or four held rows (a jack in a corner, a redundant set among them): returns
+    ``(accelerations, forces 1..4, A11, A22, A33, A44)``, the same numbers as the held loop's arrays (where
+    m = 3, the fourth row is the third again with no force: adding its 0 changes no sum)."""
+    a = accel_s(t, q, qd, p, tt)
+    r1, r2, r3, r4 = rows4(t, q, qd, p, m, k1, k2, k3, k4)
+    f, A11, A22, A33, A44 = factor4(w, m, r1, r2, r3, r4)
+    x1, x2, x3, x4 = solve4(m, f, -row_dot_s(r1, a), -row_dot_s(r2, a), -row_dot_s(r3, a), -row_dot_s(r4, a))
+    return respond4_s(a, w, r1, x1, r2, x2, r3, x3, r4, x4), x1, x2, x3, x4, A11, A22, A33, A44
+
+
+def settle4(t, q, qd, p, w, m, k1, k2, k3, k4, level, drift, h):
+    """:func:`settle` for three or four held rows: returns ``(q, qd)``."""
+    gap, rate = N_DOF + 1, N_DOF + 2
+    f = (1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    for j in range(2):
+        r1, r2, r3, r4 = rows4(t, q, qd, p, m, k1, k2, k3, k4)
+        if j == 0:
+            f, _, _, _, _ = factor4(w, m, r1, r2, r3, r4)
+            on = True
+            for r in (r1, r2, r3, r4):      # (where m = 3, r4 is r3)
+                on = on and abs(r[gap] + level) <= drift and abs(r[rate]) * h <= drift
+            if on:
+                break
+            x1, x2, x3, x4 = solve4(m, f, -(r1[gap] + level), -(r2[gap] + level), -(r3[gap] + level),
+                                    -(r4[gap] + level))
+            q = respond4_s(q, w, r1, x1, r2, x2, r3, x3, r4, x4)
+    x1, x2, x3, x4 = solve4(m, f, -r1[rate], -r2[rate], -r3[rate], -r4[rate])
+    return q, respond4_s(qd, w, r1, x1, r2, x2, r3, x3, r4, x4)
+
+
 def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, rec_t, rec_q, rec_qd, io_k,
          record_every, n_total, qb_out, qdb_out, ga_out, gb_out, ls, A):
-    """Steps i, i+1, ... of a body riding on one or two held contacts (k1, k2; m of them), on floats.
+    """Steps i, i+1, ... of a body riding on one to four held contacts (m of them), on floats.
+
+    k1, k2: the held rows where m <= 2 (the held loop's first and last); three or
+    four (a jack in a corner, a redundant set among them: :func:`held_stage4`,
+    :func:`settle4`) are read from ``rest`` in the held loop's order
+    (:func:`jackbox.engine.modes.rest_index`).
 
     The held loop's own step (:func:`jackbox.engine.loop.hold`: its first RK4
     stage, :func:`jackbox.engine.integrator.rk4_rows` in one pass, the release
@@ -309,6 +420,21 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
     still = _COAST * arest
     w = tuple_of(winv)
     q, qd = tuple_of(q_io), tuple_of(qd_io)
+    k3 = k4 = k2
+    if m > 2:          # three or four rows: in the held loop's order (modes.rest_index: those carrying first)
+        j = 0
+        for c in range(2):
+            for k in range(N_CONTACT):
+                if (rest[k] == _CARRIES) if c == 0 else (rest[k] != 0 and rest[k] != _CARRIES):
+                    if j == 0:
+                        k1 = k
+                    elif j == 1:
+                        k2 = k
+                    elif j == 2:
+                        k3 = k4 = k
+                    else:
+                        k4 = k
+                    j += 1
     t_end = math.nan                   # the last step's last stage time, and its terms of time
     tt_end = accel_time_s(t0 + i * dt, p)
     while i < i_stop:
@@ -320,7 +446,7 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
         tt = tt_end if ta == t_end else accel_time_s(ta, p)
         # the stages: a1..a4 their accelerations, v2..v4 their rates; their forces into ls
         a1 = a2 = a3 = a4 = v2 = v3 = v4 = qd
-        A11 = A22 = 1.0
+        A11 = A22 = A33 = A44 = 1.0
         coast = False
         for s in range(4):
             hs = _NODES[s] * h
@@ -336,10 +462,14 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
                 tt_end = accel_time_s(t_end, p)
                 tt = tt_end
                 ts, qs, vs = t_end, axpy_s(hs, v3, q), axpy_s(hs, a3, qd)
-            a, x1, x2, A11, A22 = held_stage(ts, qs, vs, p, tt, w, m, k1, k2)
-            ls[s, 0] = x1
-            if m == 2:
-                ls[s, 1] = x2
+            if m <= 2:
+                a, x1, x2, A11, A22 = held_stage(ts, qs, vs, p, tt, w, m, k1, k2)
+                x3 = x4 = 0.0
+                A33 = A44 = 1.0
+            else:
+                a, x1, x2, x3, x4, A11, A22, A33, A44 = held_stage4(ts, qs, vs, p, tt, w, m, k1, k2, k3, k4)
+            for j in range(m):
+                ls[s, j] = x1 if j == 0 else x2 if j == 1 else x3 if j == 2 else x4
             if s == 0:
                 a1 = a
                 coast = True
@@ -362,7 +492,7 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
         # a force that might pull (any stage's, NaN too), or an end that is not finite: the exact loop's step
         stop = False
         for j in range(m):
-            floor = -arest / (A11 if j == 0 else A22)
+            floor = -arest / (A11 if j == 0 else A22 if j == 1 else A33 if j == 2 else A44)
             for s in range(4):
                 if not ls[s, j] >= floor:
                     stop = True
@@ -386,16 +516,18 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
                 for k in range(N_CONTACT):
                     ga_out[k] = ga[k]
                     gb_out[k] = gb[k]
-                A[0, 0] = A11
-                if m == 2:
-                    A[1, 1] = A22
+                for j in range(m):
+                    A[j, j] = A11 if j == 0 else A22 if j == 1 else A33 if j == 2 else A44
                 io_f[0], io_k[0], io_k[1] = low, n_rec, 1
                 return i
         else:
             low -= band
         # the rows back on their level (jackbox.engine.modes.settle_rows): where a gap drifted past
         # round-off, one Newton pass on the gaps and the rates from the rows there; else the rates only
-        q, qd = settle(tb, qb, qdb, p, w, m, k1, k2, half, drift, h)
+        if m <= 2:
+            q, qd = settle(tb, qb, qdb, p, w, m, k1, k2, half, drift, h)
+        else:
+            q, qd = settle4(tb, qb, qdb, p, w, m, k1, k2, k3, k4, half, drift, h)
         for d in range(N_DOF):        # what the projection moved any gap by, at most
             low -= abs(q[d] - qb[d]) * tol[_T_SPEED + d]
         for d in range(N_DOF):

@@ -280,7 +280,7 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
     a contact resting on a floor with the others far from the walls takes
     no gap row at all.
 
-    With one or two contacts held, the model's ``ride`` takes the steps it can
+    With one to four contacts held, the model's ``ride`` takes the steps it can
     first (:func:`jackbox.engine.flight.ride`: the same step on floats, the
     same numbers); the steps it stops before come back here, and one it hands
     over integrated (a pull, a non-finite end, a free contact near) is
@@ -330,8 +330,8 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
     single_until = 0             # the steps before this one go one at a time (a stretch that did not coast)
     rode = -1                    # the step the model's ride stopped before (taken here)
     while i < i_stop:
-        if not started and m <= 2 and rode != i:
-            # one or two rows held: the model's ride takes the steps it can on floats (the same numbers)
+        if not started and m <= 4 and rode != i:
+            # one to four rows held: the model's ride takes the steps it can on floats (the same numbers)
             n0 = n_rec
             io_f, io_k = ws.n[RIDE_F], ws.k[RIDE_K]
             io_f[0], io_k[0] = low, n_rec
