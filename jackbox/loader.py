@@ -63,6 +63,9 @@ LANES_STUB = ("def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):\n"
               "    for l in range(quiet.shape[0]):\n        quiet[l] = 0\n    return i\n")
 #: the held steps on floats of a model that has none compiled (yet): no step taken, the held loop takes them
 #: on its arrays (the same numbers); a kernel binds the real ones when the held loop is first in a table
+#: what a model's ride costs to compile (shaken, 2 cores): only to share the work of a first held contact
+#: out between two processes (Kernel._compile_stages)
+RIDE_COST = 6.8
 RIDE_STUB = ("def ride(t0, dt, i, i_stop, q, qd, p, tol, rest, m, k1, k2, winv, io_f, rec_t, rec_q, rec_qd, io_k,\n"
              "         record_every, n_total, qb, qdb, ga, gb, ls, A):\n    io_k[1] = 0\n    return i\n")
 GENERATED_DIR = Path(__file__).resolve().parent.parent / "generated"
@@ -528,6 +531,19 @@ class Kernel:
             self._ride = part.COMPILED["ride"]
         return self._ride
 
+    def _compile_stages(self) -> None:
+        """Compile (or load) the engine's stages compiled on first need (engine.LAZY) and this model's ride.
+
+        In two processes where there are two cores: a helper takes a share of
+        the engine's stages (:func:`engine.start`, by LAZY_COST) while this
+        process compiles the ride, then the rest. One after the other, a cold
+        shaken run at e = 0 spent 20 s on them at its first held contact.
+        """
+        engine.start((), ("exact",), busy=0.0 if self.ride_ready() else RIDE_COST, costs=engine.LAZY_COST)
+        self.ride()
+        if engine.prepare((), ("exact",)) == "miss":
+            engine.cache.kept_for_now("a stage of the engine")
+
     def ride_ready(self) -> bool:
         """Whether the model's ride is loaded or cached (nothing to compile)."""
         path = self._ride_path()
@@ -551,8 +567,7 @@ class Kernel:
             if log and not (all(engine.ready(name) for name in engine.LAZY) and self.ride_ready()):
                 log(f"compiling the engine's {', '.join(engine.LAZY)} stages and the model's held steps for "
                     f"held contacts at t = {t0 + i * dt:g} s (first use only) ...")
-            if engine.prepare((), ("exact",)) == "miss":
-                engine.cache.kept_for_now("a stage of the engine")
+            self._compile_stages()
             self._tables.pop((("exact",), engine.RESUME), None)
             self._tables.pop((("exact",), True), None)
             i_begin = i
@@ -654,8 +669,7 @@ class Kernel:
 
     def _all_stages(self):
         """The table of the exact loop with every stage, compiling the ones compiled on first need now."""
-        if engine.prepare((), ("exact",)) == "miss":
-            engine.cache.kept_for_now("a stage of the engine")
+        self._compile_stages()
         self._tables.pop((("exact",), True), None)
         return self.table(lazy=False)
 

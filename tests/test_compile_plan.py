@@ -79,9 +79,16 @@ def test_a_held_contact_compiles_the_release_stage_mid_run_and_changes_nothing(m
     whole = jackbox.simulate(scene, t_end=1.5)
     assert len(whole.held) > 0 or (whole.contact_event == 1).any()      # contacts were held: the release stage ran
     statuses = _without_lazy_stages(monkeypatch)
+    # two processes: a helper takes a share of the stages while this one compiles (here: loads) the ride
+    monkeypatch.setenv("JACKBOX_COMPILE_JOBS", "2")
+    monkeypatch.setattr(engine, "_helpers", {})
+    started, spawn = [], engine._spawn
+    monkeypatch.setattr(engine, "_spawn", lambda args, **kw: started.append(args) or spawn(args, **kw))
     said = []
     lazy = jackbox.simulate(scene, t_end=1.5, log=said.append)
     assert statuses.count(engine.MISSING) == 1 and statuses[-1] == engine.DONE
+    (share,) = started
+    assert share and set(share) < set(engine.LAZY) and not engine._helpers
     # the pause is explained, once
     (line,) = [line for line in said if "stages" in line]
     assert "for held contacts at t = " in line and "first use only" in line

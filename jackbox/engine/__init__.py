@@ -98,6 +98,10 @@ COST = {"exact": 9.8, "update": 6.0, "fallback": 9.7, "crossing": 6.0, "naive": 
         "hold": 13.2, "run_members": 5.8, "run_member_blocks": 11.5, "run_twin_members": 6.8,
         "run_twin_member_blocks": 12.9, "set_up_members": 4.1, "run_exact": 0.2, "run_naive": 0.2,
         "fill_tolerances": 0.3}
+#: what each stage compiled on first need costs once the run's own parts are compiled (their shared callees
+#: cached, so far below COST's alone): a cold shaken run at e = 0 compiled them in a row in 0.9, 6.3 and 5.5 s
+#: (and the model's ride in 7.4; loader.RIDE_COST)
+LAZY_COST = {"release": 0.9, "fallback": 6.3, "hold": 5.5}
 #: what a helper process costs before its first part: Python, Numba and the engine's import
 HELPER_START = 0.5
 #: a part -> the helper process compiling it now (see start)
@@ -208,7 +212,7 @@ def parts(names, loops=(), lazy: bool = False) -> list[str]:
     return out + [name for name in names if name not in out and not _dispatcher(name).signatures]
 
 
-def start(names, loops=(), lazy: bool = False, busy: float = 0.0) -> list[str]:
+def start(names, loops=(), lazy: bool = False, busy: float = 0.0, costs: dict | None = None) -> list[str]:
     """Hand part of what ``prepare(names, loops)`` will compile to a helper process, now.
 
     Compile time is user time: on a machine with two cores or more, a second
@@ -217,14 +221,16 @@ def start(names, loops=(), lazy: bool = False, busy: float = 0.0) -> list[str]:
     this process does first, the model's functions) into the cache, while this one compiles
     the rest; :func:`prepare` then loads the helper's parts (or compiles
     them itself if the helper failed). ``JACKBOX_COMPILE_JOBS=1`` turns it
-    off. Returns the parts handed out.
+    off. costs: the parts' costs where they differ from COST (LAZY_COST for
+    the stages compiled on first need, mid-run). Returns the parts handed out.
     """
     if numba.config.DISABLE_JIT or _jobs() < 2:
         return []
     todo = [name for name in parts(names, loops, lazy) if name not in _helpers and not cached(name)]
     if not todo:
         return []
-    theirs = share_out({name: COST.get(name, 1.0) for name in todo}, busy + FIRST_COMPILE,
+    costs = costs or {}
+    theirs = share_out({name: costs.get(name, COST.get(name, 1.0)) for name in todo}, busy + FIRST_COMPILE,
                        HELPER_START + FIRST_COMPILE)
     if not theirs:
         return []
