@@ -58,6 +58,8 @@ def rk4(model, t, q, qd, dt, p, q_out, qd_out, m, ws):
 #: a cut at 0.01 rad passed them, and took 1.4x as long for a spinning plastic drop that turns 0.015
 #: a step. Free flight needs no cut: its motion is not curved by a constraint.
 TURN_PER_PASS = 0.015
+#: the margin of held_passes' quick test below TURN_PER_PASS (far wider than the squares' round-off)
+QUICK = 0.99
 #: at most this many passes in one step (a non-finite rate takes one)
 MAX_PASSES = 64
 
@@ -82,7 +84,12 @@ def held_passes(qd, dt, n, length):
     for d in range(2, n, 3):
         w = max(w, abs(qd[d]))
     if n == 6:
-        w = max(w, math.hypot(qd[3] - qd[0], qd[4] - qd[1]) / length)
+        dx, dy = qd[3] - qd[0], qd[4] - qd[1]
+        # (the library's hypot, some 15 ns, only where the squares leave it in doubt: a step that
+        # certainly takes one pass by both takes one by the hypot too; NaN and inf take it)
+        quick = TURN_PER_PASS * QUICK
+        if not (w * abs(dt) <= quick and (dx * dx + dy * dy) * (dt * dt) <= (quick * length) * (quick * length)):
+            w = max(w, math.hypot(dx, dy) / length)
     turn = w * abs(dt)
     if not (turn > TURN_PER_PASS and math.isfinite(turn)):
         return 1
