@@ -61,11 +61,11 @@ LANES_SOURCE = Path(__file__).with_name("engine") / "lanes.py"
 #: each member alone through the exact loop (a kernel binds the real ones before a study uses them)
 LANES_STUB = ("def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):\n"
               "    for l in range(quiet.shape[0]):\n        quiet[l] = 0\n    return i\n")
-#: the held steps on floats of a model that has none compiled (yet): no step taken, the held loop takes them
-#: on its arrays (the same numbers); a kernel binds the real ones when the held loop is first in a table
 #: what a model's ride costs to compile (shaken, 2 cores): only to share the work of a first held contact
 #: out between two processes (Kernel._compile_stages)
 RIDE_COST = 6.8
+#: the held steps on floats of a model that has none compiled (yet): no step taken, the held loop takes them
+#: on its arrays (the same numbers); a kernel binds the real ones when the held loop is first in a table
 RIDE_STUB = ("def ride(t0, dt, i, i_stop, q, qd, p, tol, rest, m, k1, k2, winv, io_f, rec_t, rec_q, rec_qd, io_k,\n"
              "         record_every, n_total, qb, qdb, ga, gb, ls, A):\n    io_k[1] = 0\n    return i\n")
 GENERATED_DIR = Path(__file__).resolve().parent.parent / "generated"
@@ -521,7 +521,8 @@ class Kernel:
         """The model's held steps on floats (:func:`jackbox.engine.flight.ride`), compiled (or loaded) on first need.
 
         The binding has a stub in its place (:data:`RIDE_STUB`): a model that
-        never holds a contact (an elastic run) never compiles it (3.8 s here).
+        never holds a contact (an elastic run) never compiles it (6.8 s here, since it takes three and four
+        rows too; 4.3 s before).
         """
         if self._ride is None:
             path = _write_part(self._ride_path(), self._ride_text())
@@ -539,7 +540,8 @@ class Kernel:
         process compiles the ride, then the rest. One after the other, a cold
         shaken run at e = 0 spent 20 s on them at its first held contact.
         """
-        engine.start((), ("exact",), busy=0.0 if self.ride_ready() else RIDE_COST, costs=engine.LAZY_COST)
+        engine.start((), ("exact",), busy=0.0 if self.ride_ready() else RIDE_COST, costs=engine.LAZY_COST,
+                     first=False)
         self.ride()
         if engine.prepare((), ("exact",)) == "miss":
             engine.cache.kept_for_now("a stage of the engine")

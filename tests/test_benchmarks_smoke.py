@@ -129,12 +129,17 @@ def test_throughput_resting_row():
     assert ride["held"] == ["bottom:1", "bottom:2"] and ride["events"] == 0
     for key in ("held_ns_per_step", "elastic_ns_per_step", "ratio"):
         assert _positive(ride[key]), (key, ride[key])
+    # and wedged in a corner: four rows held, one of them redundant
+    corner = r["corner"]
+    assert corner["held"] == ["right:2", "right:3", "bottom:1", "bottom:2"] and corner["events"] == 0
+    assert _positive(corner["held_ns_per_step"]) and _positive(corner["ratio"])
     text = markdown({"command": "x", "machine": {"description": "m"}, "repeat": 1, "wall_seconds": 1.0,
                      "quick": True, "sizes": SIZES["quick"], "load_average": {"start": None, "end": None},
                      "scenes": [], "ceiling": {"reason": "-"}, "ensemble": {"reason": "-"}, "resting": r,
                      "targets": []})
     assert "## Held contacts" in text and "bottom:0, bottom:1, ground:2, ground:3" in text
     assert "riding a shaken floor, shaken e = 0: 2 (bottom:1, bottom:2)" in text
+    assert "held in a corner, shaken e = 0: 4 (right:2, right:3, bottom:1, bottom:2)" in text
 
 
 def test_campaign_quick_mode(tmp_path):

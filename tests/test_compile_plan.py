@@ -315,3 +315,10 @@ def test_the_parts_are_shared_out_so_that_the_later_process_finishes_first():
 
         best = finish(theirs)
         assert all(finish(theirs ^ {n}) >= best for n in cost)
+    # more parts than EXHAUSTIVE: one by one, the heaviest first, each to the process that is free sooner
+    cost = {f"p{i:02d}": float(i % 7 + 1) for i in range(engine.EXHAUSTIVE + 3)}
+    theirs = engine.share_out(cost, 2.0, 1.0)
+    assert theirs == sorted(theirs, key=lambda n: (-cost[n], n))
+    load = 2.0 + sum(c for n, c in cost.items() if n not in theirs)
+    helper = 1.0 + sum(cost[n] for n in theirs)
+    assert max(load, helper) < 2.0 + sum(cost.values()) and abs(load - helper) <= max(cost.values())

@@ -118,7 +118,7 @@ def test_the_broad_phase_and_the_gap_rows_it_skips_change_nothing(builtin, over)
                                         ("hand", {"restitution": 0.0}),
                                         ("drop", {"restitution": 0.3, "ground_restitution": 0.3})])
 def test_held_steps_on_floats_and_on_arrays_give_the_same_numbers(name, over, all_scenes):
-    """The model's ride (held steps on one or two contacts, on floats) against the held loop's arrays
+    """The model's ride (held steps on one to four contacts, on floats) against the held loop's arrays
     (the kernel built with ``RIDE = False``): every sample, the end state, the contact modes and the event log
     to the bit. Which of the two takes a held step depends on the state alone (the ride stops before a step
     that coasts or needs passes, and hands over, integrated, one that may release or comes near a free
@@ -151,8 +151,8 @@ def test_held_steps_on_floats_and_on_arrays_give_the_same_numbers(name, over, al
     assert (ends[3] != ends[0]) == (name in IN_CORNERS)
 
 
-#: the runs of test_held_steps_on_floats_and_on_arrays_give_the_same_numbers whose jack rests in a corner
-#: of the box (three or four contacts held) in their first 6 s
+#: the runs of test_held_steps_on_floats_and_on_arrays_give_the_same_numbers whose ride takes steps on three
+#: or four held rows in their first 6 s (shaken: the jack wedged in a corner of the tilted box)
 IN_CORNERS = ("shaken", "spring")
 
 
@@ -359,3 +359,59 @@ def test_the_two_codings_of_rk4_give_the_same_steps_bit_for_bit(name):
     assert np.all(np.isfinite(qa)) and np.abs(qa - run.q).max() > 1e-3   # it moved
     np.testing.assert_array_equal(qa, qb)
     np.testing.assert_array_equal(qda, qdb)
+
+
+def test_the_solve_on_three_or_four_rows_is_the_held_loops_to_the_bit():
+    # flight.factor4, solve4 and the emitted respond4_s (a jack wedged in a corner, on floats) against the
+    # held loop's contact_matrix, factor_rows, solve_rows and add_response, for m = 3 and 4 with no row, and
+    # each row in turn, depending on those before it (the rank-revealing factorization gives it no force):
+    # the same operations in their order, so the same bits, whichever row drops out. (Both sides are
+    # called from compiled code: the engine's functions have no Python wrapper.)
+    from numba import njit
+
+    from jackbox import loader
+    from jackbox.engine.impact import contact_matrix, factor_rows, solve_rows
+    from jackbox.engine.modes import add_response
+
+    kernel = loader.kernel_for(jackbox.load_scene("shaken"))
+    part = loader._import_part(loader._write_part(kernel._ride_path(), kernel._ride_text()))
+    factor4, solve4, respond4_s = part.factor4, part.solve4, part.respond4_s
+
+    @njit
+    def on_arrays(jac, winv, ridx, m, A, L, rinv, b, y, x, out):
+        contact_matrix(jac, winv, ridx, m, A)
+        rank = factor_rows(A, m, L, rinv)
+        solve_rows(b, m, L, rinv, y, x)
+        add_response(jac, winv, ridx, m, x, 6, out)
+        return rank
+
+    @njit
+    def on_floats(w, m, r1, r2, r3, r4, b1, b2, b3, b4, a):
+        f, A11, A22, A33, A44 = factor4(w, m, r1, r2, r3, r4)
+        xs = solve4(m, f, b1, b2, b3, b4)
+        return f, (A11, A22, A33, A44), xs, respond4_s(a, w, r1, xs[0], r2, xs[1], r3, xs[2], r4, xs[3])
+
+    rng = np.random.default_rng(11)
+    winv = rng.uniform(0.05, 2.0, 6)
+    w = tuple(winv)
+    dropped = 0
+    for m in (3, 4):
+        for dep in range(-1, m):
+            jac = rng.normal(size=(m, 9))
+            if dep == 0:
+                jac[0, :6] = 0.0                             # no row before it: a zero row
+            elif dep > 0:                                      # a combination of the rows before it
+                jac[dep, :6] = rng.normal(size=dep) @ jac[:dep, :6]
+            A, L, rinv = np.zeros((4, 4)), np.zeros((4, 4)), np.zeros(4)
+            b, a = rng.normal(size=4), rng.normal(size=6)
+            x, out = np.zeros(4), a.copy()
+            rank = on_arrays(jac, winv, np.arange(m), m, A, L, rinv, b, np.zeros(4), x, out)
+            dropped += rank < m
+            r = [tuple(row) for row in jac] + ([tuple(jac[2])] if m == 3 else [])
+            f, diagonal, xs, got = on_floats(w, m, *r, *b, tuple(a))
+            assert f[:m] == tuple(rinv[:m]) and diagonal[:m] == tuple(np.diag(A)[:m]), (m, dep)
+            assert (f[4], f[5], f[6]) == (L[1, 0], L[2, 0], L[2, 1]), (m, dep)
+            assert m == 3 or (f[7], f[8], f[9]) == (L[3, 0], L[3, 1], L[3, 2]), (m, dep)
+            assert xs[:m] == tuple(x[:m]) and (m == 4 or xs[3] == 0.0), (m, dep)
+            assert got == tuple(out), (m, dep)
+    assert dropped == 7          # (each dependent row did drop out, and no other)

@@ -100,7 +100,7 @@ COST = {"exact": 9.8, "update": 6.0, "fallback": 9.7, "crossing": 6.0, "naive": 
         "fill_tolerances": 0.3}
 #: what each stage compiled on first need costs once the run's own parts are compiled (their shared callees
 #: cached, so far below COST's alone): a cold shaken run at e = 0 compiled them in a row in 0.9, 6.3 and 5.5 s
-#: (and the model's ride in 7.4; loader.RIDE_COST)
+#: (and the model's ride in 6.8-7.8 s: loader.RIDE_COST)
 LAZY_COST = {"release": 0.9, "fallback": 6.3, "hold": 5.5}
 #: what a helper process costs before its first part: Python, Numba and the engine's import
 HELPER_START = 0.5
@@ -212,7 +212,8 @@ def parts(names, loops=(), lazy: bool = False) -> list[str]:
     return out + [name for name in names if name not in out and not _dispatcher(name).signatures]
 
 
-def start(names, loops=(), lazy: bool = False, busy: float = 0.0, costs: dict | None = None) -> list[str]:
+def start(names, loops=(), lazy: bool = False, busy: float = 0.0, costs: dict | None = None,
+          first: bool = True) -> list[str]:
     """Hand part of what ``prepare(names, loops)`` will compile to a helper process, now.
 
     Compile time is user time: on a machine with two cores or more, a second
@@ -222,7 +223,9 @@ def start(names, loops=(), lazy: bool = False, busy: float = 0.0, costs: dict | 
     the rest; :func:`prepare` then loads the helper's parts (or compiles
     them itself if the helper failed). ``JACKBOX_COMPILE_JOBS=1`` turns it
     off. costs: the parts' costs where they differ from COST (LAZY_COST for
-    the stages compiled on first need, mid-run). Returns the parts handed out.
+    the stages compiled on first need, mid-run); first: this process has
+    yet to pay Numba's first compile (FIRST_COMPILE; not mid-run). Returns
+    the parts handed out.
     """
     if numba.config.DISABLE_JIT or _jobs() < 2:
         return []
@@ -230,7 +233,8 @@ def start(names, loops=(), lazy: bool = False, busy: float = 0.0, costs: dict | 
     if not todo:
         return []
     costs = costs or {}
-    theirs = share_out({name: costs.get(name, COST.get(name, 1.0)) for name in todo}, busy + FIRST_COMPILE,
+    theirs = share_out({name: costs.get(name, COST.get(name, 1.0)) for name in todo},
+                       busy + (FIRST_COMPILE if first else 0.0),
                        HELPER_START + FIRST_COMPILE)
     if not theirs:
         return []
