@@ -92,8 +92,9 @@ LAZY = {"release": NEED_RELEASE, "fallback": NEED_FALLBACK, "hold": NEED_HOLD}
 #: ``lazy=RESUME`` (see :func:`table`): for a run that resumes at the step that needs a stage left out
 RESUME = "resume"
 #: what each part costs to compile, in seconds on the 2-core machine of benchmarks/results/compile.md, each
-#: compiled alone in a new process after the model (shaken; benchmarks/compile_parts.py --alone): only to
-#: share the parts out between two processes (:func:`share_out`)
+#: compiled alone in a new process after the model (shaken; benchmarks/compile_parts.py --alone, one run; its
+#: next, in benchmarks/results/compile_alone.md, within 1.1 s of these but for hold, 10.0): only to share
+#: the parts out between two processes (:func:`share_out`)
 COST = {"exact": 9.8, "update": 6.0, "fallback": 9.7, "crossing": 6.0, "naive": 6.7, "step": 4.2, "release": 5.6,
         "hold": 13.2, "run_members": 5.8, "run_member_blocks": 11.5, "run_twin_members": 6.8,
         "run_twin_member_blocks": 12.9, "set_up_members": 4.1, "run_exact": 0.2, "run_naive": 0.2,
