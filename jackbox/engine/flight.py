@@ -30,7 +30,7 @@ from jackbox.engine.broad import bound as _bound
 from jackbox.engine.gaps import speed_bound as _speed_bound, step_reach as _step_reach
 from jackbox.engine.impact import RANK_TOL as _RANK_TOL
 from jackbox.engine.integrator import NODES as _NODES, SCALE as _SCALE, WEIGHTS as _WEIGHTS, held_passes as _held_passes
-from jackbox.engine.records import (CARRIES as _CARRIES, COAST as _COAST, DRIFT as _DRIFT, T_AREST as _T_AREST, T_EVENT as _T_EVENT,
+from jackbox.engine.records import (COAST as _COAST, DRIFT as _DRIFT, T_AREST as _T_AREST, T_EVENT as _T_EVENT,
                                     T_GAP as _T_GAP, T_SPEED as _T_SPEED, T_WALL as _T_WALL)
 
 #: skip the gap rows of steps whose bounding circles are far from contact
@@ -381,10 +381,10 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
          record_every, n_total, qb_out, qdb_out, ga_out, gb_out, ls, A):
     """Steps i, i+1, ... of a body riding on one to four held contacts (m of them), on floats.
 
-    k1, k2: the held rows where m <= 2 (the held loop's first and last); three or
-    four (a jack in a corner, a redundant set among them: :func:`held_stage4`,
-    :func:`settle4`) are read from ``rest`` in the held loop's order
-    (:func:`jackbox.engine.modes.rest_index`).
+    k1, k2: the held loop's first two rows (k2 = k1 where m = 1); ``io_k[2]``,
+    ``io_k[3]``: its third and fourth where m > 2 (the fourth the third again
+    where m = 3), a jack in a corner, a redundant set among them
+    (:func:`held_stage4`, :func:`settle4`).
 
     The held loop's own step (:func:`jackbox.engine.loop.hold`: its first RK4
     stage, :func:`jackbox.engine.integrator.rk4_rows` in one pass, the release
@@ -423,21 +423,7 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
     still = _COAST * arest
     w = tuple_of(winv)
     q, qd = tuple_of(q_io), tuple_of(qd_io)
-    k3 = k4 = k2
-    if m > 2:          # three or four rows: in the held loop's order (modes.rest_index: those carrying first)
-        j = 0
-        for c in range(2):
-            for k in range(N_CONTACT):
-                if (rest[k] == _CARRIES) if c == 0 else (rest[k] != 0 and rest[k] != _CARRIES):
-                    if j == 0:
-                        k1 = k
-                    elif j == 1:
-                        k2 = k
-                    elif j == 2:
-                        k3 = k4 = k
-                    else:
-                        k4 = k
-                    j += 1
+    k3, k4 = io_k[2], io_k[3]
     t_end = math.nan                   # the last step's last stage time, and its terms of time
     tt_end = accel_time_s(t0 + i * dt, p)
     while i < i_stop:

@@ -335,7 +335,8 @@ def hold(model, t0, dt, i, i_stop, q, qd, p, tol, rest, m, ws, out, n_rec, recor
             n0 = n_rec
             io_f, io_k = ws.n[RIDE_F], ws.k[RIDE_K]
             io_f[0], io_k[0] = low, n_rec
-            rode = model.ride(t0, dt, i, i_stop, q, qd, p, tol, rest, m, ridx[0], ridx[m - 1], winv, io_f, out.t,
+            io_k[2], io_k[3] = ridx[min(m, 3) - 1], ridx[m - 1]     # (the third and fourth rows, where m > 2)
+            rode = model.ride(t0, dt, i, i_stop, q, qd, p, tol, rest, m, ridx[0], ridx[min(m, 2) - 1], winv, io_f, out.t,
                               out.q, out.qd, io_k, record_every, n_total, qb, qdb, ga, gb, ls, A)
             low, n_rec = io_f[0], io_k[0]
             if n_rec > n0:

@@ -241,7 +241,7 @@ SN = 10
 # warnings pending, a WARN_* bit mask; slot 1: persistent contacts whose force pulls, a
 # bit mask, for the next contact update; slot HANDOFF_AT: why a step goes to the fallback; slot
 # PASSES_AT: the RK4 passes of the grid step's held steps), the model's ride's integers in and out (slot 0:
-# the samples written, slot 1: whether it hands a step over)
+# the samples written, slot 1: whether it hands a step over; slots 2, 3: its third and fourth held rows)
 RIDX, NEAR, HIT, CAND, IDX, NEWREST, FLAGS, RIDE_K = range(8)
 SK = 8
 
