@@ -48,6 +48,8 @@ from jackbox.scene import load_scene
 gpu.ROUNDS, gpu.CALM = json.loads(sys.argv[2])
 # short turns of unequal lengths, so that members are cut into many rounds at different steps
 gpu.CHUNK, gpu.ALONE, gpu.EVENT_TURN, gpu.HELD_TURN = 7, 3, 1, 5
+# and the members in two groups, their rounds side by side (drop's 3 members: 1 and 2)
+gpu.GROUPS, gpu.GROUP_LEAST = 2, 1
 
 def same(a, b):
     return bool(np.array_equal(a, b, equal_nan=True))
@@ -64,9 +66,10 @@ for name, path, over, n, t in json.loads(sys.argv[1]):
                              "warnings", "samples_q", "samples_qd")}
     out[name]["impulses"] = int(a.impacts.sum())
     out[name]["where"] = b.meta["where"]
-    if trace is not None:       # the last round finds no member running; the listed ones took the exact loop
-        out[name]["trace"] = [trace[-1]["running"], min(r["running"] for r in trace[:-1]) if len(trace) > 1 else 1,
-                              {key: sum(r.get(key, 0) for r in trace) for key in ("free", "held", "event", "calm")}
+    if trace is not None:       # each group's last round finds no member running; the listed ones took the exact loop
+        rows = [[r["running"] for r in trace if r["group"] == g] for g in range(2)]
+        out[name]["trace"] = [max(r[-1] for r in rows), min(min(r[:-1], default=1) for r in rows),
+                              {key: sum(r.get(key, 0) for r in trace) for key in ("free", "held", "event", "calm", "passes")}
                               | {key: trace[-1][key] for key in ("calm_tests", "calm_steps", "calm_flown")},
                               all(("alone_" + key in r) == (r[key] > 0) for r in trace for key in ("free", "held", "event"))]
 c = chaos("drop", 2, t_end=0.3, renorm=0.1, perturb={"theta_jack": 0.3})
@@ -113,12 +116,13 @@ def _simulate(cases, rounds: bool, calm: int) -> dict:
 
 
 @needs_numba_cuda
-@pytest.mark.parametrize("rounds, calm", [(False, 1), (True, 1), (True, 2)],
-                         ids=["one-go", "rounds", "rounds-calm-in-flight"])
+@pytest.mark.parametrize("rounds, calm", [(False, 1), (True, 1), (True, 2), (True, 3)],
+                         ids=["one-go", "rounds", "rounds-calm-in-flight", "rounds-calm-short"])
 def test_the_gpus_kernels_give_the_cpus_numbers_on_the_simulator(tmp_path, rounds, calm):
     """Each member in one thread from start to end, and in rounds (fly, then the exact loop for those near
     contact, packed), the calm steps in a launch of their own for the members the lean flight stopped near
-    contact (gpu.APART) or in every member's flight (gpu.IN_FLIGHT): the CPU's numbers every way."""
+    contact (gpu.APART; gpu.SHORT: only the calm steps there, the members quiet again handed back to the
+    lean flight) or in every member's flight (gpu.IN_FLIGHT): the CPU's numbers every way."""
     from .conftest import PRESCRIBED
 
     hand = tmp_path / "hand.toml"
@@ -137,10 +141,12 @@ def test_the_gpus_kernels_give_the_cpus_numbers_on_the_simulator(tmp_path, round
             assert last == 0 and fewest > 0 and timed
             assert listed["event"] > 0 or name != "drop", listed        # each list taken
             assert listed["held"] > 0 or name != "settle", listed
-            if calm == 1 and name == "drop":
+            if calm in (1, 3) and name == "drop":
                 assert listed["calm"] > 0, listed           # the lean flight's near-contact list flew on
-            elif calm != 1 or name == "hand":               # (a prescribed box has no calm test)
+            elif calm not in (1, 3) or name == "hand":      # (a prescribed box has no calm test)
                 assert listed["calm"] == 0, listed
+            if calm != 3 or name == "drop":         # only SHORT hands members back (drop's do)
+                assert (listed["passes"] > 0) == (calm == 3), listed
             if name == "drop":      # the drop's approaches have calm steps, either way, flown among quiet ones
                 assert 0 < listed["calm_steps"] < listed["calm_flown"], listed
             if name == "hand":      # no calm test, no flight with it

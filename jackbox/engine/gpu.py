@@ -263,21 +263,28 @@ HELD_TURN, EVENT_TURN = 32, 1
 #: flights stop there. On an H100 (benchmarks/results/gpu_calm.json, one sample each, the helpers inlined)
 #: shaken (1e6 x 10 s) ran at 2.80e9 and 2.87e9 member-steps/s apart, 2.66e9 in the flight, 1.80e9 nowhere;
 #: drop e = 0.6 (1e5 x 3 s) at 1.57e8 and 1.60e8, 1.61e8, 1.44e8
-NOWHERE, APART, IN_FLIGHT = 0, 1, 2
-CALM = APART
+NOWHERE, APART, IN_FLIGHT, SHORT = 0, 1, 2, 3
+CALM = SHORT
+#: with CALM = SHORT, as APART but ``calming`` takes only the calm steps: a member quiet again after them
+#: (its next step one the lean flight takes) is handed back to ``flying``, listed, within the round (its
+#: round's end kept: STATE's AT_END); at most PASSES such hand-backs a round, the members still listed
+#: then fly on in the next round. APART flies them on in ``calming`` (its 255 registers) to the chunk's end
+PASSES = 8
 #: a list to append one row a round to (what each launch took and how many members it ran;
 #: benchmarks/gpu_probe.py), or None. Tracing synchronises after every launch, so it is for diagnosis only
 TRACE = None
 #: columns of a member's row of integers: step reached, status, next sample; then counts that the trace
 #: reads (calm tests, the calm steps they found, steps flown with the calm test: ``calming``'s share)
 AT_STEP, AT_STATUS, AT_SAMPLE, AT_CALM_TESTS, AT_CALM_STEPS, AT_CALM_FLOWN = 0, 1, 2, 3, 4, 5
-STATE_COLUMNS = 6
+#: and the step at which the member's round ends (set where a round's flight starts; kept by a hand-back)
+AT_END = 6
+STATE_COLUMNS = 7
 #: what member_fly says of a member: finished (or stopped), flown (quiet to the round's end or its sample),
 #: in want of the exact loop near contact, held in a contact, or with an event in its next step (the
 #: three take it in warps of their own, so that the threads of a warp take the same branches: an event's
 #: location and impact cost many quiet steps, and a warp whose members meet their events at different
-#: steps pays for each of them)
-FINISHED, FLOWN, NEEDS_CARE, HELD, EVENT = 0, 1, 2, 3, 4
+#: steps pays for each of them); or quiet again after calm steps (CALM = SHORT: the lean flight goes on)
+FINISHED, FLOWN, NEEDS_CARE, HELD, EVENT, QUIET_AGAIN = 0, 1, 2, 3, 4, 5
 
 
 def next_stop(state, sample_steps, n_steps):
@@ -319,29 +326,38 @@ def member_start(model, exact, stages, q, qd, rest, p, tol, tally, state, dt, n_
 
 
 def member_fly(model, calm, q, qd, rest, p, tol, tally, state, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q,
-               fin_qd, fin, qb, qdb, out, box, gaps, ext, chunk, go_calm):
+               fin_qd, fin, qb, qdb, out, box, gaps, ext, chunk, go_calm, keep_end):
     """One round of a member in free flight: the model's ``fly`` from the smallest gap (``gaps``: scratch of
     a row a contact), as the exact loop goes on after a step of its own, so that a member a turn has taken
-    away from a wall flies again at once. With go_calm, a step that is not quiet but calm (the lanes'
+    away from a wall flies again at once; to ``chunk`` steps on, or with keep_end to the end of the round
+    it is in (a hand-back). With go_calm, a step that is not quiet but calm (the lanes'
     :func:`~.lanes.calm`: the exact loop's own test finds no event in it, so it would take the trial) is
-    taken here and the flight goes on. Returns FINISHED, FLOWN, NEEDS_CARE (a step that is not quiet),
-    EVENT (a step that is not quiet with a gap below zero at its end: the trial's gaps, computed here, sort
-    the member only) or HELD (a held contact)."""
+    taken here and the flight goes on; with go_calm 2 only the calm steps, then QUIET_AGAIN before the
+    first quiet step after them (the lean flight's to take). Returns FINISHED, FLOWN, NEEDS_CARE (a step
+    that is not quiet), EVENT (a step that is not quiet with a gap below zero at its end: the trial's gaps,
+    computed here, sort the member only), HELD (a held contact) or QUIET_AGAIN."""
     i = state[AT_STEP]
     if state[AT_STATUS] != DONE or i >= n_steps:
         return FINISHED
     if not is_free(rest, model.n_contact):
         return HELD
     stop = next_stop(state, sample_steps, n_steps)
-    end = min(stop, i + chunk)
+    if keep_end == 0:
+        state[AT_END] = i + chunk
+    end = min(stop, state[AT_END])
     never = np.int64(-1)        # (the member's samples are its own: arrive)
     model.phi(i * dt, q, p, gaps)
     clear = lowest_free(gaps, rest, model.n_contact)
     tests = calmed = 0          # (counted here, written once: the trace reads them)
+    again = False
     while True:
-        i, _, _ = model.fly(0.0, dt, i, end, q, qd, p, tol, clear, qb, qdb, out.t, out.q, out.qd, np.int64(0), never,
-                            np.int64(1), never)
+        until = min(end, i + 1) if go_calm == 2 and calmed > 0 else end
+        i, _, _ = model.fly(0.0, dt, i, until, q, qd, p, tol, clear, qb, qdb, out.t, out.q, out.qd, np.int64(0),
+                            never, np.int64(1), never)
         if i == end or go_calm == 0:
+            break
+        if i == until:          # (go_calm 2) a quiet step after the calm ones: the lean flight goes on
+            again = True
             break
         quiet, clear = calm(i * dt, (i + 1) * dt, q, qd, qb, qdb, p, tol, ext)
         tests += 1
@@ -362,6 +378,8 @@ def member_fly(model, calm, q, qd, rest, p, tol, tally, state, dt, n_steps, samp
         settle(state, tally, dt, fin)
     if i == end:
         return FLOWN
+    if again:
+        return QUIET_AGAIN
     model.phi((i + 1) * dt, qb, p, gaps)
     return EVENT if not lowest_free(gaps, rest, model.n_contact) >= 0.0 else NEEDS_CARE
 
@@ -488,13 +506,13 @@ def _calm_none(t, t_next, q, qd, qn, vn, p, tol, ext):
 
 @_cuda.jit(device=True, inline="always")
 def _fly(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, j,
-         calm_test, chunk, go_calm):
+         calm_test, chunk, go_calm, keep_end):
     """Member j's flight (:func:`member_fly`), its rows written back where it still runs: what it needs next."""
     q, qd, p, tol = _rows(Q, QD, P, TOL, j)
     how = _gpu_fly(_model(), calm_test, q, qd, REST[j], p, tol, TALLY[j], STATE[j], dt, n_steps, sample_steps,
                    samp_q[j], samp_qd[j], fin_q[j], fin_qd[j], fin[j], _cuda.local.array(_N, _f8),
                    _cuda.local.array(_N, _f8), _samples(), _cuda.local.array(6, _f8), _cuda.local.array(_C, _f8),
-                   _cuda.local.array(2, _f8), chunk, go_calm)
+                   _cuda.local.array(2, _f8), chunk, go_calm, keep_end)
     if how != {FINISHED}:
         _copy(Q[j], q)
         _copy(QD[j], qd)
@@ -503,9 +521,10 @@ def _fly(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, s
 
 @_cuda.jit(device=True, inline="always")
 def _list(how, j, n, LIST, COUNT, care_back):
-    """Member j on the list of what it needs: near contact from LIST's start (COUNT[0]; with care_back, back
-    from its end, COUNT[4]), held back from the end of its first half (COUNT[2]), an event in its next step
-    from its second half on (COUNT[3])."""
+    """Member j on the list of what it needs (LIST has three parts of n): near contact from LIST's start
+    (COUNT[0]; with care_back, back from the end of its second part, COUNT[4]), held back from the end of
+    its first part (COUNT[2]), an event in its next step from its second part on (COUNT[3]), quiet again
+    after calm steps from its third part on (COUNT[5])."""
     if how == {NEEDS_CARE}:
         if care_back:
             LIST[2 * n - 1 - _cuda.atomic.add(COUNT, 4, 1)] = j
@@ -515,35 +534,41 @@ def _list(how, j, n, LIST, COUNT, care_back):
         LIST[n - 1 - _cuda.atomic.add(COUNT, 2, 1)] = j
     elif how == {EVENT}:
         LIST[n + _cuda.atomic.add(COUNT, 3, 1)] = j
+    elif how == {QUIET_AGAIN}:
+        LIST[2 * n + _cuda.atomic.add(COUNT, 5, 1)] = j
 
 
 @_cuda.jit(cache=True)
 def flying(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, LIST,
-           COUNT, chunk):
-    """A round of free flight for every member, the lean one (no calm test): those that need more are listed
-    (:func:`_list`), those still running counted (COUNT[1])."""
-    j = _cuda.grid(1)
-    if j >= Q.shape[0]:
+           COUNT, n_listed, first, chunk):
+    """A round of free flight, the lean one (no calm test), for every member (n_listed < 0: those still
+    running counted, COUNT[1]) or for the n_listed in LIST from ``first`` on (handed back by ``calming``: to
+    the end of their round); those that need more are listed (:func:`_list`)."""
+    k = _cuda.grid(1)
+    if k >= (Q.shape[0] if n_listed < 0 else n_listed):
         return
+    j = k if n_listed < 0 else LIST[first + k]
     how = _fly(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, j,
-               _calm_none, chunk, 0)
-    if how != {FINISHED}:
+               _calm_none, chunk, 0, 0 if n_listed < 0 else 1)
+    if n_listed < 0 and how != {FINISHED}:
         _cuda.atomic.add(COUNT, 1, 1)
-        _list(how, j, Q.shape[0], LIST, COUNT, False)
+    _list(how, j, Q.shape[0], LIST, COUNT, False)
 
 
 @_cuda.jit(cache=True)
 def calming(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, LIST,
-            COUNT, n_listed, chunk):
+            COUNT, n_listed, chunk, short):
     """The flight with the calm test (steps that are not quiet but calm are taken here): for the n_listed
     members at LIST's start (those the lean flight listed near contact; the ones still near contact listed
-    back from LIST's end), or for every member (n_listed < 0: a round's flight, listed as ``flying`` lists)."""
+    back from the end of LIST's second part), or for every member (n_listed < 0: a round's flight, listed as
+    ``flying`` lists). With ``short``, the calm steps only, to the end of the member's round: those quiet
+    again after them are listed for the lean flight (LIST's third part)."""
     k = _cuda.grid(1)
     if k >= (Q.shape[0] if n_listed < 0 else n_listed):
         return
     j = k if n_listed < 0 else LIST[k]
     how = _fly(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, j,
-               calm, chunk, 1)
+               calm, chunk, 2 if short != 0 else 1, short)
     if n_listed < 0 and how != {FINISHED}:
         _cuda.atomic.add(COUNT, 1, 1)
     _list(how, j, Q.shape[0], LIST, COUNT, n_listed >= 0)
@@ -603,7 +628,7 @@ def kernel_text(model_text: str, flight_text: str, constants: dict) -> str:
     for key, value in {**constants, "FUNCTIONS": functions, "SC": SC, "SN": SN, "SK": SK, "MODE_SLOTS": MODE_SLOTS,
                        "ROW": constants["N_DOF"] + ROW_EXTRA,
                        "LOG_SIZE": LOG_SIZE, "TALLY": TALLY, "FINISHED": FINISHED, "NEEDS_CARE": NEEDS_CARE,
-                       "HELD": HELD, "EVENT": EVENT}.items():
+                       "HELD": HELD, "EVENT": EVENT, "QUIET_AGAIN": QUIET_AGAIN}.items():
         filled = filled.replace("{" + key + "}", str(value))
     calm_test = calm_text(model_text)
     filled += f"\n# also out of line: {', '.join(MORE_OUT_OF_LINE) or '(nothing)'}\n"
@@ -659,7 +684,7 @@ def _signatures():
     I1, I2 = types.Array(i8, 1, "C"), types.Array(i8, 2, "C")
     rounds = (V2, V2, V2, V2, I2, V2, I2, f8, i8, I1, V3, V3, V2, V2, V2, I1)
     return {"members": (V2, V2, V2, V2, f8, i8, I1, V3, V3, V2, V2, V2), "alone": rounds + (i8, i8, i8, i8),
-            "flying": rounds + (I1, i8), "calming": rounds + (I1, i8, i8),
+            "flying": rounds + (I1, i8, i8, i8), "calming": rounds + (I1, i8, i8, i8),
             "twins": (V2, V2, V2, V2, V2, V2, f8, i8, i8, V1, V2, V2)}
 
 
@@ -677,8 +702,8 @@ KERNEL_NAMES = ("members", "alone", "flying", "calming", "twins")
 
 def calm_mode(kernels) -> int:
     """Where a model's rounds take their calm steps (:data:`CALM`; NOWHERE for a model without a calm test)."""
-    if CALM not in (NOWHERE, APART, IN_FLIGHT):
-        raise ValueError(f"gpu.CALM must be NOWHERE, APART or IN_FLIGHT (0, 1, 2), got {CALM!r}")
+    if CALM not in (NOWHERE, APART, IN_FLIGHT, SHORT):
+        raise ValueError(f"gpu.CALM must be NOWHERE, APART, IN_FLIGHT or SHORT (0, 1, 2, 3), got {CALM!r}")
     return CALM if kernels._HAS_CALM else NOWHERE
 
 
@@ -786,6 +811,12 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
     turns of one length. A member's numbers are those of one
     call of the exact loop from its start (:func:`member_fly` starts ``fly``
     as the exact loop starts a call); the rounds end when every member has.
+
+    The members are cut into GROUPS groups (:func:`_rounds`), each with its rounds on a
+    stream of its own, side by side: a launch's last warps (a member's long
+    approach, an event that takes many tries) leave most of the GPU idle,
+    and another group's launches fill it. (A traced group synchronises after
+    each launch, which holds up the others: trace one group for its timings.)
     """
     n = Q0.shape[0]
     if n == 0:
@@ -798,12 +829,63 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
     STATE = cuda.to_device(np.zeros((n, STATE_COLUMNS), np.int64), stream=stream)
     steps = cuda.to_device(np.ascontiguousarray(sample_steps, np.int64), stream=stream)
     outs = [cuda.to_device(a, stream=stream) for a in (samp_q, samp_qd, fin_q, fin_qd, fin)]
-    LIST = cuda.to_device(np.zeros(2 * n, np.int64), stream=stream)
-    count, zero = np.zeros(5, np.int64), np.zeros(5, np.int64)
-    COUNT = cuda.to_device(count, stream=stream)
-    args = (*dev, REST, TALLY_, STATE, float(dt), int(n_steps), steps, *outs, LIST)
+    stream.synchronize()        # (the groups' streams read them)
+    groups = max(1, min(GROUPS, -(-n // GROUP_LEAST)))
+    cut = [n * g // groups for g in range(groups + 1)]
+    _drive([_rounds(kernels, cuda.stream(), tuple(x[a:b] for x in (*dev, REST, TALLY_, STATE))
+                    + (float(dt), int(n_steps), steps) + tuple(x[a:b] for x in outs), b - a, g)
+            for g, (a, b) in enumerate(zip(cut, cut[1:]))])
+    for host, out in zip((samp_q, samp_qd, fin_q, fin_qd, fin), outs):
+        out.copy_to_host(host, stream=stream)
+    if TRACE is not None:       # the members' counts, summed into the last round's row
+        counts = STATE.copy_to_host(stream=stream)
+        stream.synchronize()
+        TRACE[-1].update(calm_tests=int(counts[:, AT_CALM_TESTS].sum()),
+                         calm_steps=int(counts[:, AT_CALM_STEPS].sum()),
+                         calm_flown=int(counts[:, AT_CALM_FLOWN].sum()))
+    stream.synchronize()
+
+
+#: groups of members whose rounds run side by side, each on a stream of its own (:func:`run_rounds`), and
+#: the fewest members a group has; host-side, so benchmarks/gpu_probe.py tries others without compiling
+GROUPS, GROUP_LEAST = 4, 4096
+
+
+def _drive(rounds) -> None:
+    """Runs the groups' rounds (:func:`_rounds`) to their ends: each yields an event when it needs its
+    counts, and goes on once the GPU has reached it."""
+    waiting = [(r, e) for r in rounds for e in [next(r, None)] if e is not None]
+    while waiting:
+        if len(waiting) == 1:
+            waiting[0][1].synchronize()
+        still = []
+        for r, e in waiting:
+            if getattr(e, "query", None) is None or e.query():      # (the simulator's events have no query)
+                e = next(r, None)
+                if e is None:
+                    continue
+            still.append((r, e))
+        waiting = still
+
+
+def _rounds(kernels, stream, args, n, group):
+    """The rounds of group ``group``, n members (args: the kernels' arguments up to LIST, their rows the
+    group's) on ``stream``; a generator that yields an event after each copy of the counts to the host
+    (read once the GPU has reached it: :func:`_drive`)."""
+    cuda = _cuda()
+    LIST = cuda.device_array(3 * n, np.int64, stream=stream)
+    count, zero = cuda.pinned_array(6, np.int64), np.zeros(6, np.int64)
+    COUNT = cuda.to_device(zero, stream=stream)
+    event = cuda.event()
+    args = args + (LIST,)
     grid = (n + BLOCK - 1) // BLOCK
     trace, clock = TRACE, time.perf_counter
+
+    def counts():
+        COUNT.copy_to_host(count, stream=stream)
+        event.record(stream)
+        return event
+
     t0 = clock()
     calm = calm_mode(kernels)
     kernels.alone[grid, BLOCK, stream](*args, 0, -1, HELD_TURN, ALONE)
@@ -812,13 +894,12 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
         if trace is not None:
             stream.synchronize()
             t1 = clock()
-            row = {"start": t1 - t0}
+            row = {"group": group, "start": t1 - t0}
         if calm == IN_FLIGHT:
-            kernels.calming[grid, BLOCK, stream](*args, COUNT, -1, CHUNK)
+            kernels.calming[grid, BLOCK, stream](*args, COUNT, -1, CHUNK, 0)
         else:
-            kernels.flying[grid, BLOCK, stream](*args, COUNT, CHUNK)
-        COUNT.copy_to_host(count, stream=stream)
-        stream.synchronize()
+            kernels.flying[grid, BLOCK, stream](*args, COUNT, -1, 0, CHUNK)
+        yield counts()
         if trace is not None:
             t0 = clock()
             row.update(fly=t0 - t1, running=int(count[1]), free=int(count[0]), held=int(count[2]),
@@ -827,17 +908,35 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
         if count[1] == 0:
             break
         near, first_near = int(count[0]), 0
-        if calm == APART and near > 0:          # those near contact fly on with the calm test
-            kernels.calming[(near + BLOCK - 1) // BLOCK, BLOCK, stream](*args, COUNT, near, CHUNK)
-            COUNT.copy_to_host(count, stream=stream)
-            stream.synchronize()
+        if calm in (APART, SHORT) and near > 0:         # those near contact fly on with the calm test
+            listed = passes = 0
+            while True:
+                listed += near
+                kernels.calming[(near + BLOCK - 1) // BLOCK, BLOCK, stream](*args, COUNT, near, CHUNK,
+                                                                             int(calm == SHORT))
+                yield counts()
+                again = int(count[5])
+                if again == 0 or passes == PASSES:
+                    break
+                # (SHORT) those quiet again fly on in the lean flight to their round's end; the ones it
+                # stops near contact are listed from LIST's start again, for the calm test
+                passes += 1
+                count[0] = count[5] = 0
+                COUNT.copy_to_device(count, stream=stream)
+                kernels.flying[(again + BLOCK - 1) // BLOCK, BLOCK, stream](*args, COUNT, again, 2 * n, CHUNK)
+                yield counts()
+                near = int(count[0])
+                if near == 0:
+                    break
+                count[5] = 0
+                COUNT.copy_to_device(count, stream=stream)
             near, first_near = int(count[4]), 2 * n - int(count[4])
             if trace is not None:
                 t1, t0 = t0, clock()
-                row.update(calming=t0 - t1, calm=int(count[0]), event=int(count[3]))
-        held, event = int(count[2]), int(count[3])
-        for first, listed, turn, key in ((n, event, EVENT_TURN, "alone_event"), (first_near, near, ALONE, "alone_free"),
-                                         (n - held, held, ALONE, "alone_held")):
+                row.update(calming=t0 - t1, calm=listed, passes=passes, event=int(count[3]))
+        held, event_listed = int(count[2]), int(count[3])
+        for first, listed, turn, key in ((n, event_listed, EVENT_TURN, "alone_event"),
+                                         (first_near, near, ALONE, "alone_free"), (n - held, held, ALONE, "alone_held")):
             if listed > 0:
                 kernels.alone[(listed + BLOCK - 1) // BLOCK, BLOCK, stream](*args, first, listed, HELD_TURN, turn)
                 if trace is not None:
@@ -846,14 +945,6 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
                     row[key] = t0 - t1
         if trace is not None:
             row["free"] = near
-    for host, out in zip((samp_q, samp_qd, fin_q, fin_qd, fin), outs):
-        out.copy_to_host(host, stream=stream)
-    if trace is not None:       # the members' counts, summed into the last round's row
-        counts = STATE.copy_to_host(stream=stream)
-        stream.synchronize()
-        row.update(calm_tests=int(counts[:, AT_CALM_TESTS].sum()), calm_steps=int(counts[:, AT_CALM_STEPS].sum()),
-                   calm_flown=int(counts[:, AT_CALM_FLOWN].sum()))
-    stream.synchronize()
 
 
 def run_twin_members(kernels, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin) -> None:
