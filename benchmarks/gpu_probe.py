@@ -1,6 +1,6 @@
 """Why a GPU ensemble runs at the rate it does: where the rounds' time goes, turn lengths, block size.
 
-    python benchmarks/gpu_probe.py [--out DIR] [--sweep] [--calm] [--groups]    (on a machine with an NVIDIA GPU and numba-cuda)
+    python benchmarks/gpu_probe.py [--out DIR] [--sweep] [--calm]    (on a machine with an NVIDIA GPU and numba-cuda)
 
 Compiles the kernels it needs (``alone``, ``flying`` and ``calming`` of each built-in scene,
 one process each, side by side; found cached, loaded), then, one line a study
@@ -24,10 +24,7 @@ as it is measured (and ``gpu_probe.json`` in DIR):
   again, or in every member's flight), shaken and drop e = 0.6, each traced
   and not; a traced study also counts the calm tests, the calm steps they
   found and the steps flown with the calm test (``calming``'s share); and
-  the hand-backs' chunk lengths and passes a round for shaken;
-
-* with ``--groups``, only the groups of members whose rounds run side by
-  side (``gpu.GROUPS``), shaken and drop e = 0.6, 1 to 16 groups.
+  the hand-backs' chunk lengths and passes a round for shaken.
 
 Figures are member-steps per second of the whole study, one sample each (a
 traced study is slower by its synchronisations): a probe, not the benchmark
@@ -48,23 +45,20 @@ from jackbox.scene import load_scene
 SHAKEN = ("shaken", {}, 1_000_000, 10.0)
 DROP = ("drop", {"restitution": "0.6"}, 100_000, 3.0)
 ALIKE = ("shaken", {}, 100_000, 10.0)
-GROUPS = gpu.GROUPS
 
 
 def rate(study, rounds=True, block=gpu.BLOCK, chunk=gpu.CHUNK, alone=gpu.ALONE, traced=False, perturb=True,
-         event=gpu.EVENT_TURN, held=gpu.HELD_TURN, calm=gpu.CALM, passes=gpu.PASSES, groups=None) -> dict:
+         event=gpu.EVENT_TURN, held=gpu.HELD_TURN, calm=gpu.CALM, passes=gpu.PASSES) -> dict:
     """One study's rate with these settings (each call sets all of them; the defaults are jackbox's)."""
     name, over, n, t = study
     gpu.ROUNDS, gpu.BLOCK, gpu.CHUNK, gpu.ALONE, gpu.EVENT_TURN, gpu.HELD_TURN = rounds, block, chunk, alone, event, held
     gpu.CALM, gpu.PASSES = calm, passes
-    gpu.GROUPS = (1 if traced else GROUPS) if groups is None else groups      # (a traced group holds up the others)
     gpu.TRACE = [] if traced else None
     t0 = time.perf_counter()
     e = E.ensemble(load_scene(name, over), n, t_end=t, perturb={"theta_jack": 1e-6} if perturb else None,
                    device="cuda")
     row = {"scene": name, "n": n, "t_end": t, "perturbed": perturb, "rounds": rounds, "block": block, "chunk": chunk,
            "alone": alone, "event_turn": event, "held_turn": held, "calm": gpu.CALM, "passes": passes,
-           "groups": gpu.GROUPS,
            "member_steps_per_second": e.meta["member_steps_per_second"],
            "seconds": time.perf_counter() - t0, "impulses_per_member": float(e.impacts.mean()),
            "completed": int(e.completed.sum())}
@@ -89,8 +83,6 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("."))
     parser.add_argument("--sweep", action="store_true", help="the turn lengths traced, and a block size of 128")
     parser.add_argument("--calm", action="store_true", help="only where the rounds take their calm steps")
-    parser.add_argument("--groups", action="store_true", help="only the groups of members whose rounds run side by "
-                                                              "side")
     args = parser.parse_args()
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
@@ -107,11 +99,6 @@ def main() -> None:
         rows.append(row)
         (out / "gpu_probe.json").write_text(json.dumps(rows, indent=1) + "\n")
 
-    if args.groups:
-        for study in (SHAKEN, DROP):
-            for groups in (1, 2, 4, 8, 16, 1, 4):
-                keep(rate(study, groups=groups))
-        return
     if args.calm:
         for study in (SHAKEN, DROP):
             for calm in (gpu.APART, gpu.SHORT, gpu.IN_FLIGHT, gpu.APART, gpu.SHORT):

@@ -179,10 +179,10 @@ def run_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray
     # samples a member never reaches stay NaN (the kernel writes the ones it reaches)
     samp_q, samp_qd = np.full((m, S, 6), np.nan), np.full((m, S, 6), np.nan)
     fin_q, fin_qd, fin = np.zeros((m, 6)), np.zeros((m, 6)), np.zeros((m, 7))
-    kernel.run_members(rows["q0"], rows["qd0"], rows["params"], rows["tol"], spec.dt, spec.n_steps,
-                       np.asarray(spec.sample_steps, np.int64), samp_q, samp_qd, fin_q, fin_qd, fin,
-                       lanes=spec.device == "cpu" and use_lanes(spec, kernel), device=spec.device)
-    lost, inside = _unfinished(spec.scene, fin[:, 3], fin_q, fin_qd, rows["params"])
+    gaps = kernel.run_members(rows["q0"], rows["qd0"], rows["params"], rows["tol"], spec.dt, spec.n_steps,
+                              np.asarray(spec.sample_steps, np.int64), samp_q, samp_qd, fin_q, fin_qd, fin,
+                              lanes=spec.device == "cpu" and use_lanes(spec, kernel), device=spec.device)
+    lost, inside = _unfinished(spec.scene, fin[:, 3], fin_q, fin_qd, rows["params"], gaps)
     fin[lost | inside, 0] = np.nan
     # (columns copied: a study of one part keeps these arrays as they are, contiguous, without all of fin)
     return {"q": fin_q, "qd": fin_qd, "energy": fin[:, 0].copy(), "impacts": fin[:, 1].astype(np.int64),
@@ -192,17 +192,23 @@ def run_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.ndarray
             "q0": rows["q0"], "qd0": rows["qd0"], "params": rows["params"]}
 
 
-def _unfinished(scene: Scene, status: np.ndarray, Q: np.ndarray, QD: np.ndarray, P: np.ndarray):
+def _unfinished(scene: Scene, status: np.ndarray, Q: np.ndarray, QD: np.ndarray, P: np.ndarray,
+                gaps: np.ndarray | None = None):
     """Members that did not complete, said so in place; returns the masks (stopped early, ended inside a wall).
 
     One that stopped early has no final state: NaN in Q and QD, not its last
     sample (the step it reached is kept in ``steps``). One whose final state Q
     (with parameter rows P) has a gap below -api.INSIDE_LIMIT L went through a
     wall unseen (forces far beyond what a step resolves): status INSIDE, NaN.
+    gaps: each member's smallest gap at its final state, where the GPU computed
+    them (:func:`jackbox.engine.gpu.run_members`), else :func:`jackbox.api.inside` asks.
     """
     lost = status != K.DONE
     Q[lost], QD[lost] = np.nan, np.nan
-    inside = ~lost & api.inside(scene, Q, dict(zip(scene.param_names, P.T)))
+    if gaps is None:
+        inside = ~lost & api.inside(scene, Q, dict(zip(scene.param_names, P.T)))
+    else:
+        inside = ~lost & ~(gaps >= -api.INSIDE_LIMIT * P[:, scene.param_names.index("L")])
     status[inside] = K.INSIDE
     Q[inside], QD[inside] = np.nan, np.nan
     return lost, inside

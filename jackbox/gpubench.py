@@ -61,7 +61,7 @@ DROP_OVER = {"restitution": 0.6}
 PERTURB = {"theta_jack": 1e-6}
 #: kernels compiled cold, side by side: (scene, kernel); ``members`` with --one-go only
 KERNELS = tuple((scene, name) for scene in ("shaken", "drop", "spring")
-                for name in ("members", "alone", "flying", "calming")) + (("shaken", "twins"),)
+                for name in ("members", "alone", "flying", "calming")) + (("shaken", "smallest_gaps"), ("shaken", "twins"))
 
 
 def kernels_for(one_go: bool) -> tuple:

@@ -600,7 +600,8 @@ class Kernel:
         (:func:`jackbox.engine.members.run_member_blocks`; the same numbers),
         where the model has lanes and every member has the parameters and
         tolerances of the first. device: ``"cuda"``, one GPU thread a member
-        (:mod:`jackbox.engine.gpu`; lanes are the CPU's).
+        (:mod:`jackbox.engine.gpu`; lanes are the CPU's). Returns each member's
+        smallest gap at its final state where the GPU computed them, else None.
         """
         if device == "cuda":
             from .engine import gpu
@@ -622,6 +623,7 @@ class Kernel:
             run(kernel._all_stages(), again, *outputs)
             for whole, part in zip((samp_q, samp_qd, fin_q, fin_qd, fin), outputs):
                 whole[again] = part
+        return None
 
     def run_twin_members(self, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin,
                          lanes: bool = False, device: str = "cpu"):

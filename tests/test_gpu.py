@@ -41,6 +41,7 @@ def poisoned(self, shape, dtype, alignment=None):
     return out
 
 kernelapi.FakeCUDALocal.array = poisoned
+from jackbox import api, loader
 from jackbox.engine import gpu
 from jackbox.ensemble import chaos, ensemble
 from jackbox.scene import load_scene
@@ -48,8 +49,6 @@ from jackbox.scene import load_scene
 gpu.ROUNDS, gpu.CALM = json.loads(sys.argv[2])
 # short turns of unequal lengths, so that members are cut into many rounds at different steps
 gpu.CHUNK, gpu.ALONE, gpu.EVENT_TURN, gpu.HELD_TURN = 7, 3, 1, 5
-# and the members in two groups, their rounds side by side (drop's 3 members: 1 and 2)
-gpu.GROUPS, gpu.GROUP_LEAST = 2, 1
 
 def same(a, b):
     return bool(np.array_equal(a, b, equal_nan=True))
@@ -66,12 +65,24 @@ for name, path, over, n, t in json.loads(sys.argv[1]):
                              "warnings", "samples_q", "samples_qd")}
     out[name]["impulses"] = int(a.impacts.sum())
     out[name]["where"] = b.meta["where"]
-    if trace is not None:       # each group's last round finds no member running; the listed ones took the exact loop
-        rows = [[r["running"] for r in trace if r["group"] == g] for g in range(2)]
-        out[name]["trace"] = [max(r[-1] for r in rows), min(min(r[:-1], default=1) for r in rows),
+    if trace is not None:       # the last round finds no member running; the listed ones took the exact loop
+        out[name]["trace"] = [trace[-1]["running"], min(r["running"] for r in trace[:-1]) if len(trace) > 1 else 1,
                               {key: sum(r.get(key, 0) for r in trace) for key in ("free", "held", "event", "calm", "passes")}
                               | {key: trace[-1][key] for key in ("calm_tests", "calm_steps", "calm_flown")},
                               all(("alone_" + key in r) == (r[key] > 0) for r in trace for key in ("free", "held", "event"))]
+scene = load_scene("drop")
+P = scene.params()
+Q = np.array(scene.raw["initial"]["q"], float) + np.random.default_rng(2).normal(0, 0.4, (64, 6))
+gaps = np.empty(64)
+gpu._launch(loader.kernel_for(scene).gpu().smallest_gaps, 64, (Q, np.tile(scene.param_values, (64, 1))), (0.0,), (),
+            (gaps,))
+from jackbox.scene import contact_gaps_many
+numpy_gaps = contact_gaps_many(Q, np.broadcast_to(scene.points, (64,) + scene.points.shape), np.full(64, P["L"]),
+                               np.full(64, P["w_box"]), True).min(axis=1)
+inside = api.inside(scene, Q, P)
+out["final_check"] = {"same_inside": bool((~(gaps >= -api.INSIDE_LIMIT * P["L"]) == inside).all()),
+                      "some_inside": bool(inside.any()), "some_not": bool((~inside).any()),
+                      "gaps_within": bool(np.allclose(gaps, numpy_gaps, rtol=0, atol=1e-12))}
 c = chaos("drop", 2, t_end=0.3, renorm=0.1, perturb={"theta_jack": 0.3})
 d = chaos("drop", 2, t_end=0.3, renorm=0.1, perturb={"theta_jack": 0.3}, device="cuda")
 out["chaos"] = {"stretch": same(c.stretch, d.stretch), "impacts": same(c.impacts, d.impacts),
@@ -154,6 +165,10 @@ def test_the_gpus_kernels_give_the_cpus_numbers_on_the_simulator(tmp_path, round
         differ = [key for key, equal in out[name].items() if equal is False]
         assert not differ, f"{name}: the GPU's {', '.join(differ)} differ from the CPU's"
     assert out["drop"]["impulses"] > 0 and out["settle"]["impulses"] > 0          # the contact path ran
+    # the check of the final states on the GPU (kernel smallest_gaps: the model's phi) is api.inside's, and
+    # its gaps NumPy's to round-off, on states in and out of the walls and the ground
+    assert out["final_check"] == {"same_inside": True, "some_inside": True, "some_not": True,
+                                  "gaps_within": True}, out["final_check"]
     assert out["chaos"] == {"stretch": True, "impacts": True, "q": True, "finite": True}
 
 
@@ -220,7 +235,7 @@ def test_every_kernel_compiles_for_the_cuda_target(tmp_path, name):
     assert all(where in ([True], []) for where in kept.values()), kept         # ([]: not called in this kernel)
     assert kept["contact_rows"] == kept["lcp"] == kept["update_contacts"] == [True], kept
     assert out == {k: {"lowered": "NoneType", "allocates": False}
-                   for k in ("members", "alone", "flying", "calming", "twins")}
+                   for k in ("members", "alone", "flying", "calming", "smallest_gaps", "twins")}
 
 
 def test_numpy_without_row_stack_gets_the_alias_numba_cuda_registers(monkeypatch):
@@ -235,6 +250,27 @@ def test_numpy_without_row_stack_gets_the_alias_numba_cuda_registers(monkeypatch
     monkeypatch.delattr(np, "row_stack", raising=False)
     gpu._cuda()
     assert np.row_stack is np.vstack
+
+
+def test_the_check_of_the_final_states_takes_the_gpus_gaps_where_it_has_them():
+    """A GPU study's final states are checked on the GPU (kernel smallest_gaps); the host reads the gaps: a
+    member below -INSIDE_LIMIT L went through a wall unseen (status INSIDE, NaN), as api.inside says on the CPU;
+    a NaN gap is not taken for a clear one."""
+    from jackbox import api
+    from jackbox.engine import DONE, INSIDE, NONFINITE
+    from jackbox.ensemble import _unfinished
+    from jackbox.scene import load_scene
+
+    scene = load_scene("drop")
+    L = scene.params()["L"]
+    P = np.tile(scene.param_values, (4, 1))
+    Q, QD = np.ones((4, 6)), np.ones((4, 6))
+    status = np.array([DONE, DONE, DONE, NONFINITE])
+    gaps = np.array([-0.5 * api.INSIDE_LIMIT * L, -2 * api.INSIDE_LIMIT * L, np.nan, -1.0])
+    lost, inside = _unfinished(scene, status, Q, QD, P, gaps)
+    assert list(inside) == [False, True, True, False] and list(lost) == [False, False, False, True]
+    assert list(status) == [DONE, INSIDE, INSIDE, NONFINITE]
+    assert np.isfinite(Q[0]).all() and np.isnan(Q[1:]).all() and np.isnan(QD[1:]).all()
 
 
 def test_device_cuda_without_numba_cuda_says_what_to_install(monkeypatch):

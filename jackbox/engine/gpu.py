@@ -258,17 +258,19 @@ HELD_TURN, EVENT_TURN = 32, 1
 #: argument. 0: nowhere (a flight stops at a step that is not quiet). 1 (APART): every member flies in the
 #: lean ``flying``, which stops there, and those it listed near contact go on in ``calming`` (the flight
 #: with the calm test, for up to ``chunk`` steps more), packed into warps of their own: the calm test's code
-#: (255 registers where the lean flight needs 156-182) slows only the members that need it. 2 (IN_FLIGHT):
-#: every member flies in ``calming``. Models without lanes (a prescribed box) have no calm test: their
-#: flights stop there. On an H100 (benchmarks/results/gpu_calm.json, one sample each, the helpers inlined)
-#: shaken (1e6 x 10 s) ran at 2.80e9 and 2.87e9 member-steps/s apart, 2.66e9 in the flight, 1.80e9 nowhere;
-#: drop e = 0.6 (1e5 x 3 s) at 1.57e8 and 1.60e8, 1.61e8, 1.44e8
+#: (255 registers where the lean flight needs 156-182) slows only the members that need it. 3 (SHORT): as
+#: APART, but ``calming`` takes the calm steps only: a member quiet again after them (its next step one the
+#: lean flight takes) is handed back to ``flying``, listed, to the end of its round (STATE's AT_END); at
+#: most PASSES hand-backs a round (the members still listed then fly on in the next). 2 (IN_FLIGHT): every
+#: member flies in ``calming``. Models without lanes (a prescribed box) have no calm test: their flights
+#: stop there. On an H100 with these kernels (benchmarks/results/gpu_calm.json, one process, one sample each)
+#: shaken (1e6 x 10 s) ran at 4.16e9 and 4.09e9 member-steps/s SHORT, 3.41e9 and 3.42e9 APART, 3.11e9 in
+#: the flight; traced, APART flew 3.05e9 of the 1e10 steps in ``calming`` (1.28 s of the study there),
+#: SHORT 1.3e8 (0.77 s); drop e = 0.6 (1e5 x 3 s) 1.60-1.64e8 every way (its time is the held turns).
+#: PASSES 2 and 32 ran shaken as 8 did (4.19e9, 4.11e9); a chunk of 512 or 1024 steps slower (3.86e9,
+#: 3.77e9)
 NOWHERE, APART, IN_FLIGHT, SHORT = 0, 1, 2, 3
 CALM = SHORT
-#: with CALM = SHORT, as APART but ``calming`` takes only the calm steps: a member quiet again after them
-#: (its next step one the lean flight takes) is handed back to ``flying``, listed, within the round (its
-#: round's end kept: STATE's AT_END); at most PASSES such hand-backs a round, the members still listed
-#: then fly on in the next round. APART flies them on in ``calming`` (its 255 registers) to the chunk's end
 PASSES = 8
 #: a list to append one row a round to (what each launch took and how many members it ran;
 #: benchmarks/gpu_probe.py), or None. Tracing synchronises after every launch, so it is for diagnosis only
@@ -575,6 +577,24 @@ def calming(Q, QD, P, TOL, REST, TALLY, STATE, dt, n_steps, sample_steps, samp_q
 
 
 @_cuda.jit(cache=True)
+def smallest_gaps(Q, P, t, OUT):
+    """Each member's smallest gap at time t, its state a row of Q (six numbers, the integrated coordinates
+    last, as a study's final states): the check that no member went through a wall unseen, asked here of
+    the model's phi (on the host, NumPy's took 0.44 s of a 1e6-member study's 2.4 s). NaN if a gap is."""
+    j = _cuda.grid(1)
+    if j < Q.shape[0]:
+        q, g = _cuda.local.array(_N, _f8), _cuda.local.array(_C, _f8)
+        for d in range(_N):
+            q[d] = Q[j, 6 - _N + d]
+        phi(t, q, P[j], g)
+        low = g[0]
+        for k in range(1, _C):
+            if g[k] < low or g[k] != g[k]:
+                low = g[k]
+        OUT[j] = low
+
+
+@_cuda.jit(cache=True)
 def twins(Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin):
     j = _cuda.grid(1)
     if j < Q0.shape[0]:
@@ -684,7 +704,7 @@ def _signatures():
     I1, I2 = types.Array(i8, 1, "C"), types.Array(i8, 2, "C")
     rounds = (V2, V2, V2, V2, I2, V2, I2, f8, i8, I1, V3, V3, V2, V2, V2, I1)
     return {"members": (V2, V2, V2, V2, f8, i8, I1, V3, V3, V2, V2, V2), "alone": rounds + (i8, i8, i8, i8),
-            "flying": rounds + (I1, i8, i8, i8), "calming": rounds + (I1, i8, i8, i8),
+            "flying": rounds + (I1, i8, i8, i8), "calming": rounds + (I1, i8, i8, i8), "smallest_gaps": (V2, V2, f8, V1),
             "twins": (V2, V2, V2, V2, V2, V2, f8, i8, i8, V1, V2, V2)}
 
 
@@ -697,7 +717,7 @@ ROUNDS = True
 
 
 #: the kernels of a kernel file
-KERNEL_NAMES = ("members", "alone", "flying", "calming", "twins")
+KERNEL_NAMES = ("members", "alone", "flying", "calming", "smallest_gaps", "twins")
 
 
 def calm_mode(kernels) -> int:
@@ -715,9 +735,10 @@ def kind_kernels(kind: str, rounds: bool | None = None, calm: int | None = None)
     if kind == "chaos":
         return ("twins",)
     if not (ROUNDS if rounds is None else rounds):
-        return ("members",)
+        return ("members", "smallest_gaps")
     calm = CALM if calm is None else calm
-    return ("alone", "calming") if calm == IN_FLIGHT else ("alone", "flying", "calming") if calm else ("alone", "flying")
+    kernels = ("alone", "calming") if calm == IN_FLIGHT else ("alone", "flying", "calming") if calm else ("alone", "flying")
+    return kernels + ("smallest_gaps",)
 
 
 def is_cached(kernels, kind: str, rounds: bool | None = None) -> bool:
@@ -785,20 +806,26 @@ def device_name() -> str:
 
 
 def run_members(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin,
-                rounds: bool | None = None) -> None:
+                rounds: bool | None = None) -> np.ndarray:
     """:func:`jackbox.engine.members.run_members` on the GPU: the outputs' rows filled, one thread a member.
 
-    rounds: in rounds (:func:`run_rounds`) or each member in one go (None: :data:`ROUNDS`).
+    rounds: in rounds (:func:`run_rounds`) or each member in one go (None: :data:`ROUNDS`). Returns each
+    member's smallest gap at its final state, at the end time (kernel ``smallest_gaps``; the caller's
+    check of the final states: meaningless for a member that stopped early).
     """
+    gaps = np.empty(Q0.shape[0])
     if ROUNDS if rounds is None else rounds:
-        run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin)
+        run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin, gaps)
     else:
         _launch(kernels.members, Q0.shape[0], (Q0, QD0, P, TOL), (float(dt), int(n_steps)), (sample_steps,),
                 (samp_q, samp_qd, fin_q, fin_qd, fin))
+        _launch(kernels.smallest_gaps, Q0.shape[0], (fin_q, P), (float(n_steps * dt),), (), (gaps,))
+    return gaps
 
 
-def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin) -> None:
-    """:func:`run_members` in rounds.
+def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin,
+               gaps) -> None:
+    """:func:`run_members` in rounds (gaps: each member's smallest gap at the end, filled).
 
     In rounds, so that a member near contact does not hold up the 31 others
     of its warp: every member flies while it is quiet (kernel ``flying``, at most
@@ -811,12 +838,6 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
     turns of one length. A member's numbers are those of one
     call of the exact loop from its start (:func:`member_fly` starts ``fly``
     as the exact loop starts a call); the rounds end when every member has.
-
-    The members are cut into GROUPS groups (:func:`_rounds`), each with its rounds on a
-    stream of its own, side by side: a launch's last warps (a member's long
-    approach, an event that takes many tries) leave most of the GPU idle,
-    and another group's launches fill it. (A traced group synchronises after
-    each launch, which holds up the others: trace one group for its timings.)
     """
     n = Q0.shape[0]
     if n == 0:
@@ -829,63 +850,12 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
     STATE = cuda.to_device(np.zeros((n, STATE_COLUMNS), np.int64), stream=stream)
     steps = cuda.to_device(np.ascontiguousarray(sample_steps, np.int64), stream=stream)
     outs = [cuda.to_device(a, stream=stream) for a in (samp_q, samp_qd, fin_q, fin_qd, fin)]
-    stream.synchronize()        # (the groups' streams read them)
-    groups = max(1, min(GROUPS, -(-n // GROUP_LEAST)))
-    cut = [n * g // groups for g in range(groups + 1)]
-    _drive([_rounds(kernels, cuda.stream(), tuple(x[a:b] for x in (*dev, REST, TALLY_, STATE))
-                    + (float(dt), int(n_steps), steps) + tuple(x[a:b] for x in outs), b - a, g)
-            for g, (a, b) in enumerate(zip(cut, cut[1:]))])
-    for host, out in zip((samp_q, samp_qd, fin_q, fin_qd, fin), outs):
-        out.copy_to_host(host, stream=stream)
-    if TRACE is not None:       # the members' counts, summed into the last round's row
-        counts = STATE.copy_to_host(stream=stream)
-        stream.synchronize()
-        TRACE[-1].update(calm_tests=int(counts[:, AT_CALM_TESTS].sum()),
-                         calm_steps=int(counts[:, AT_CALM_STEPS].sum()),
-                         calm_flown=int(counts[:, AT_CALM_FLOWN].sum()))
-    stream.synchronize()
-
-
-#: groups of members whose rounds run side by side, each on a stream of its own (:func:`run_rounds`), and
-#: the fewest members a group has; host-side, so benchmarks/gpu_probe.py tries others without compiling
-GROUPS, GROUP_LEAST = 4, 4096
-
-
-def _drive(rounds) -> None:
-    """Runs the groups' rounds (:func:`_rounds`) to their ends: each yields an event when it needs its
-    counts, and goes on once the GPU has reached it."""
-    waiting = [(r, e) for r in rounds for e in [next(r, None)] if e is not None]
-    while waiting:
-        if len(waiting) == 1:
-            waiting[0][1].synchronize()
-        still = []
-        for r, e in waiting:
-            if getattr(e, "query", None) is None or e.query():      # (the simulator's events have no query)
-                e = next(r, None)
-                if e is None:
-                    continue
-            still.append((r, e))
-        waiting = still
-
-
-def _rounds(kernels, stream, args, n, group):
-    """The rounds of group ``group``, n members (args: the kernels' arguments up to LIST, their rows the
-    group's) on ``stream``; a generator that yields an event after each copy of the counts to the host
-    (read once the GPU has reached it: :func:`_drive`)."""
-    cuda = _cuda()
-    LIST = cuda.device_array(3 * n, np.int64, stream=stream)
-    count, zero = cuda.pinned_array(6, np.int64), np.zeros(6, np.int64)
-    COUNT = cuda.to_device(zero, stream=stream)
-    event = cuda.event()
-    args = args + (LIST,)
+    LIST = cuda.to_device(np.zeros(3 * n, np.int64), stream=stream)
+    count, zero = np.zeros(6, np.int64), np.zeros(6, np.int64)
+    COUNT = cuda.to_device(count, stream=stream)
+    args = (*dev, REST, TALLY_, STATE, float(dt), int(n_steps), steps, *outs, LIST)
     grid = (n + BLOCK - 1) // BLOCK
     trace, clock = TRACE, time.perf_counter
-
-    def counts():
-        COUNT.copy_to_host(count, stream=stream)
-        event.record(stream)
-        return event
-
     t0 = clock()
     calm = calm_mode(kernels)
     kernels.alone[grid, BLOCK, stream](*args, 0, -1, HELD_TURN, ALONE)
@@ -894,12 +864,13 @@ def _rounds(kernels, stream, args, n, group):
         if trace is not None:
             stream.synchronize()
             t1 = clock()
-            row = {"group": group, "start": t1 - t0}
+            row = {"start": t1 - t0}
         if calm == IN_FLIGHT:
             kernels.calming[grid, BLOCK, stream](*args, COUNT, -1, CHUNK, 0)
         else:
             kernels.flying[grid, BLOCK, stream](*args, COUNT, -1, 0, CHUNK)
-        yield counts()
+        COUNT.copy_to_host(count, stream=stream)
+        stream.synchronize()
         if trace is not None:
             t0 = clock()
             row.update(fly=t0 - t1, running=int(count[1]), free=int(count[0]), held=int(count[2]),
@@ -914,7 +885,8 @@ def _rounds(kernels, stream, args, n, group):
                 listed += near
                 kernels.calming[(near + BLOCK - 1) // BLOCK, BLOCK, stream](*args, COUNT, near, CHUNK,
                                                                              int(calm == SHORT))
-                yield counts()
+                COUNT.copy_to_host(count, stream=stream)
+                stream.synchronize()
                 again = int(count[5])
                 if again == 0 or passes == PASSES:
                     break
@@ -924,7 +896,8 @@ def _rounds(kernels, stream, args, n, group):
                 count[0] = count[5] = 0
                 COUNT.copy_to_device(count, stream=stream)
                 kernels.flying[(again + BLOCK - 1) // BLOCK, BLOCK, stream](*args, COUNT, again, 2 * n, CHUNK)
-                yield counts()
+                COUNT.copy_to_host(count, stream=stream)
+                stream.synchronize()
                 near = int(count[0])
                 if near == 0:
                     break
@@ -934,9 +907,9 @@ def _rounds(kernels, stream, args, n, group):
             if trace is not None:
                 t1, t0 = t0, clock()
                 row.update(calming=t0 - t1, calm=listed, passes=passes, event=int(count[3]))
-        held, event_listed = int(count[2]), int(count[3])
-        for first, listed, turn, key in ((n, event_listed, EVENT_TURN, "alone_event"),
-                                         (first_near, near, ALONE, "alone_free"), (n - held, held, ALONE, "alone_held")):
+        held, event = int(count[2]), int(count[3])
+        for first, listed, turn, key in ((n, event, EVENT_TURN, "alone_event"), (first_near, near, ALONE, "alone_free"),
+                                         (n - held, held, ALONE, "alone_held")):
             if listed > 0:
                 kernels.alone[(listed + BLOCK - 1) // BLOCK, BLOCK, stream](*args, first, listed, HELD_TURN, turn)
                 if trace is not None:
@@ -945,6 +918,17 @@ def _rounds(kernels, stream, args, n, group):
                     row[key] = t0 - t1
         if trace is not None:
             row["free"] = near
+    OUT = cuda.device_array(n, stream=stream)
+    kernels.smallest_gaps[grid, BLOCK, stream](outs[2], dev[2], float(n_steps * dt), OUT)
+    OUT.copy_to_host(gaps, stream=stream)
+    for host, out in zip((samp_q, samp_qd, fin_q, fin_qd, fin), outs):
+        out.copy_to_host(host, stream=stream)
+    if trace is not None:       # the members' counts, summed into the last round's row
+        counts = STATE.copy_to_host(stream=stream)
+        stream.synchronize()
+        row.update(calm_tests=int(counts[:, AT_CALM_TESTS].sum()), calm_steps=int(counts[:, AT_CALM_STEPS].sum()),
+                   calm_flown=int(counts[:, AT_CALM_FLOWN].sum()))
+    stream.synchronize()
 
 
 def run_twin_members(kernels, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin) -> None:
