@@ -259,9 +259,10 @@ HELD_TURN, EVENT_TURN = 32, 1
 #: lean ``flying``, which stops there, and those it listed near contact go on in ``calming`` (the flight
 #: with the calm test, for up to ``chunk`` steps more), packed into warps of their own: the calm test's code
 #: (255 registers where the lean flight needs 156-182) slows only the members that need it. 3 (SHORT): as
-#: APART, but ``calming`` takes the calm steps only: a member quiet again after them (its next step one the
-#: lean flight takes) is handed back to ``flying``, listed, to the end of its round (STATE's AT_END); at
-#: most PASSES hand-backs a round (the members still listed then fly on in the next). 2 (IN_FLIGHT): every
+#: APART, but ``calming`` takes the calm steps only: a member quiet again after them (the step after them
+#: one the lean flight would take, taken there) is handed back to ``flying``, listed, to the end of its
+#: round (STATE's AT_END); at most PASSES hand-backs a round (the members still listed then fly on in the
+#: next round's ``flying``). 2 (IN_FLIGHT): every
 #: member flies in ``calming``. Models without lanes (a prescribed box) have no calm test: their flights
 #: stop there. On an H100 with these kernels (benchmarks/results/gpu_calm.json, one process, one sample each)
 #: shaken (1e6 x 10 s) ran at 4.16e9 and 4.09e9 member-steps/s SHORT, 3.41e9 and 3.42e9 APART, 3.11e9 in
@@ -278,7 +279,8 @@ TRACE = None
 #: columns of a member's row of integers: step reached, status, next sample; then counts that the trace
 #: reads (calm tests, the calm steps they found, steps flown with the calm test: ``calming``'s share)
 AT_STEP, AT_STATUS, AT_SAMPLE, AT_CALM_TESTS, AT_CALM_STEPS, AT_CALM_FLOWN = 0, 1, 2, 3, 4, 5
-#: and the step at which the member's round ends (set where a round's flight starts; kept by a hand-back)
+#: and the step at which the member's round ends (set where a round's flight starts; kept by SHORT's
+#: ``calming`` and its hand-backs, set again by APART's and IN_FLIGHT's)
 AT_END = 6
 STATE_COLUMNS = 7
 #: what member_fly says of a member: finished (or stopped), flown (quiet to the round's end or its sample),
@@ -332,10 +334,10 @@ def member_fly(model, calm, q, qd, rest, p, tol, tally, state, dt, n_steps, samp
     """One round of a member in free flight: the model's ``fly`` from the smallest gap (``gaps``: scratch of
     a row a contact), as the exact loop goes on after a step of its own, so that a member a turn has taken
     away from a wall flies again at once; to ``chunk`` steps on, or with keep_end to the end of the round
-    it is in (a hand-back). With go_calm, a step that is not quiet but calm (the lanes'
-    :func:`~.lanes.calm`: the exact loop's own test finds no event in it, so it would take the trial) is
-    taken here and the flight goes on; with go_calm 2 only the calm steps, then QUIET_AGAIN before the
-    first quiet step after them (the lean flight's to take). Returns FINISHED, FLOWN, NEEDS_CARE (a step
+    it is in (STATE's AT_END: SHORT's ``calming`` and its hand-backs). With go_calm, a step that is not
+    quiet but calm (the lanes' :func:`~.lanes.calm`: the exact loop's own test finds no event in it, so it
+    would take the trial) is taken here and the flight goes on; with go_calm 2 only the calm steps and one
+    quiet step after them (``fly``'s, which it takes as the lean flight would), then QUIET_AGAIN. Returns FINISHED, FLOWN, NEEDS_CARE (a step
     that is not quiet), EVENT (a step that is not quiet with a gap below zero at its end: the trial's gaps,
     computed here, sort the member only), HELD (a held contact) or QUIET_AGAIN."""
     i = state[AT_STEP]
