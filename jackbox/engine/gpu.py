@@ -262,14 +262,13 @@ HELD_TURN, EVENT_TURN = 32, 1
 #: APART, but ``calming`` takes the calm steps only: a member quiet again after them (the step after them
 #: one the lean flight would take, taken there) is handed back to ``flying``, listed, to the end of its
 #: round (STATE's AT_END); at most PASSES hand-backs a round (the members still listed then fly on in the
-#: next round's ``flying``). 2 (IN_FLIGHT): every
-#: member flies in ``calming``. Models without lanes (a prescribed box) have no calm test: their flights
-#: stop there. On an H100 with these kernels (benchmarks/results/gpu_calm.json, one process, one sample each)
-#: shaken (1e6 x 10 s) ran at 4.16e9 and 4.09e9 member-steps/s SHORT, 3.41e9 and 3.42e9 APART, 3.11e9 in
-#: the flight; traced, APART flew 3.05e9 of the 1e10 steps in ``calming`` (1.28 s of the study there),
-#: SHORT 1.3e8 (0.77 s); drop e = 0.6 (1e5 x 3 s) 1.60-1.64e8 every way (its time is the held turns).
-#: PASSES 2 and 32 ran shaken as 8 did (4.19e9, 4.11e9); a chunk of 512 or 1024 steps slower (3.86e9,
-#: 3.77e9)
+#: next round's ``flying``). 2 (IN_FLIGHT): every member flies in ``calming``. Models without lanes (a
+#: prescribed box) have no calm test: their flights stop there. On an H100 with these kernels
+#: (benchmarks/results/gpu_calm.json, one process, one sample each) shaken (1e6 x 10 s) ran at 4.16e9 and
+#: 4.09e9 member-steps/s SHORT, 3.41e9 and 3.42e9 APART, 3.11e9 in the flight; traced, APART flew 3.05e9
+#: of the 1e10 steps in ``calming`` (1.28 s of the study there), SHORT 1.3e8 (0.77 s); drop e = 0.6 (1e5 x
+#: 3 s) 1.60-1.64e8 every way (its time is the held turns). PASSES 2 and 32 ran shaken as 8 did (4.19e9,
+#: 4.11e9); a chunk of 512 or 1024 steps slower (3.86e9, 3.77e9)
 NOWHERE, APART, IN_FLIGHT, SHORT = 0, 1, 2, 3
 CALM = SHORT
 PASSES = 8
@@ -337,9 +336,10 @@ def member_fly(model, calm, q, qd, rest, p, tol, tally, state, dt, n_steps, samp
     it is in (STATE's AT_END: SHORT's ``calming`` and its hand-backs). With go_calm, a step that is not
     quiet but calm (the lanes' :func:`~.lanes.calm`: the exact loop's own test finds no event in it, so it
     would take the trial) is taken here and the flight goes on; with go_calm 2 only the calm steps and one
-    quiet step after them (``fly``'s, which it takes as the lean flight would), then QUIET_AGAIN. Returns FINISHED, FLOWN, NEEDS_CARE (a step
-    that is not quiet), EVENT (a step that is not quiet with a gap below zero at its end: the trial's gaps,
-    computed here, sort the member only), HELD (a held contact) or QUIET_AGAIN."""
+    quiet step after them (``fly``'s, which it takes as the lean flight would), then QUIET_AGAIN. Returns
+    FINISHED, FLOWN, NEEDS_CARE (a step that is not quiet), EVENT (a step that is not quiet with a gap below
+    zero at its end: the trial's gaps, computed here, sort the member only), HELD (a held contact) or
+    QUIET_AGAIN."""
     i = state[AT_STEP]
     if state[AT_STATUS] != DONE or i >= n_steps:
         return FINISHED
@@ -739,8 +739,9 @@ def kind_kernels(kind: str, rounds: bool | None = None, calm: int | None = None)
     if not (ROUNDS if rounds is None else rounds):
         return ("members", "smallest_gaps")
     calm = CALM if calm is None else calm
-    kernels = ("alone", "calming") if calm == IN_FLIGHT else ("alone", "flying", "calming") if calm else ("alone", "flying")
-    return kernels + ("smallest_gaps",)
+    if calm == IN_FLIGHT:
+        return ("alone", "calming", "smallest_gaps")
+    return ("alone", "flying", "calming", "smallest_gaps") if calm else ("alone", "flying", "smallest_gaps")
 
 
 def is_cached(kernels, kind: str, rounds: bool | None = None) -> bool:
