@@ -322,6 +322,12 @@ INSIDE_SAMPLES = 101
 INSIDE_BLOCK = 4096
 
 
+def beyond_a_wall(smallest: np.ndarray, L) -> np.ndarray:
+    """Which smallest gaps (of states, box half-widths L) are below -INSIDE_LIMIT L: went through a wall unseen
+    (NaN too)."""
+    return ~(smallest >= -INSIDE_LIMIT * L)
+
+
 def inside(scene: Scene, Q: np.ndarray, P: dict) -> np.ndarray:
     """Which of the states Q (n, 6) have a gap below -INSIDE_LIMIT L; P: parameter values, floats or (n,) rows."""
     n = Q.shape[0]
@@ -332,7 +338,7 @@ def inside(scene: Scene, Q: np.ndarray, P: dict) -> np.ndarray:
         for a in range(0, n, INSIDE_BLOCK):        # (in blocks: the temporaries stay in the cache)
             b = a + INSIDE_BLOCK
             gaps = contact_gaps_many(Q[a:b], points[a:b], L[a:b], w[a:b], scene.has_ground_contacts)
-            out[a:b] = ~(gaps.min(axis=1) >= -INSIDE_LIMIT * L[a:b])
+            out[a:b] = beyond_a_wall(gaps.min(axis=1), L[a:b])
     return out
 
 

@@ -208,7 +208,7 @@ def _unfinished(scene: Scene, status: np.ndarray, Q: np.ndarray, QD: np.ndarray,
     if gaps is None:
         inside = ~lost & api.inside(scene, Q, dict(zip(scene.param_names, P.T)))
     else:
-        inside = ~lost & ~(gaps >= -api.INSIDE_LIMIT * P[:, scene.param_names.index("L")])
+        inside = ~lost & api.beyond_a_wall(gaps, P[:, scene.param_names.index("L")])
     status[inside] = K.INSIDE
     Q[inside], QD[inside] = np.nan, np.nan
     return lost, inside

@@ -883,9 +883,9 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
             break
         near, first_near = int(count[0]), 0
         if calm in (APART, SHORT) and near > 0:         # those near contact fly on with the calm test
-            listed = passes = 0
+            calm_listed = passes = 0
             while True:
-                listed += near
+                calm_listed += near
                 kernels.calming[(near + BLOCK - 1) // BLOCK, BLOCK, stream](*args, COUNT, near, CHUNK,
                                                                              int(calm == SHORT))
                 COUNT.copy_to_host(count, stream=stream)
@@ -909,7 +909,7 @@ def run_rounds(kernels, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp
             near, first_near = int(count[4]), 2 * n - int(count[4])
             if trace is not None:
                 t1, t0 = t0, clock()
-                row.update(calming=t0 - t1, calm=listed, passes=passes, event=int(count[3]))
+                row.update(calming=t0 - t1, calm=calm_listed, passes=passes, event=int(count[3]))
         held, event = int(count[2]), int(count[3])
         for first, listed, turn, key in ((n, event, EVENT_TURN, "alone_event"), (first_near, near, ALONE, "alone_free"),
                                          (n - held, held, ALONE, "alone_held")):
