@@ -57,6 +57,14 @@ def workload(args):
     import jackbox
     from jackbox import ensemble as studies
 
+    if args.what == "held":
+        from jackbox import api, bench, loader
+
+        riding = jackbox.load_scene(bench.SHAKEN, {"restitution": 0.0})
+        kernel = loader.kernel_for(riding)
+        loader.compile_kernel(kernel, "exact")
+        stretch = bench.Stretch(kernel, api.prepare(riding), *{"riding": bench.RIDE, "corner": bench.CORNER}[args.scene])
+        return stretch.once
     scene = jackbox.load_scene(args.scene)
     if args.what == "run":
         return lambda: jackbox.simulate(scene, t_end=args.t_end, record_every=1_000_000)
@@ -68,8 +76,9 @@ def workload(args):
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("what", choices=("run", "ensemble", "chaos"))
-    parser.add_argument("scene", help="a built-in scene or a scene file")
+    parser.add_argument("what", choices=("run", "ensemble", "chaos", "held"))
+    parser.add_argument("scene", help="a built-in scene or a scene file; for held: riding or corner (the held "
+                                      "stretches of shaken at e = 0 that `jackbox bench` times)")
     parser.add_argument("--n", type=int, default=2000, help="members of a study (default: 2000)")
     parser.add_argument("--t-end", type=float, default=10.0)
     parser.add_argument("--lanes", action="store_true", help="a study's members in lanes")
