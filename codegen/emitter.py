@@ -206,7 +206,7 @@ def emit_module(model: Model, command: str) -> str:
         f"CONSTRAINT_NAMES = {tuple(model.constraint_names)!r}",
         f"E_SLOT = {[s.name for s in model.p].index('e')}",
         f"E_GROUND_SLOT = {[s.name for s in model.p].index('e_ground')}",
-        f"FUNCTIONS = {tuple(fn.name for fn in fs) + ('accel_time_s', 'contact_rows', 'contact_rows2_s') + TUPLE_HELPERS!r}",
+        f"FUNCTIONS = {tuple(fn.name for fn in fs) + ('accel_time_s', 'contact_rows', 'contact_pose_s', 'contact_row_s') + TUPLE_HELPERS!r}",
     ]
     bodies += _contact_rows(model, inputs, names)
     bodies += _tuple_helpers(len(model.q), len(model.p))
@@ -214,8 +214,11 @@ def emit_module(model: Model, command: str) -> str:
 
 
 def _contact_rows(model: Model, inputs, names) -> list[str]:
-    """``contact_rows(t, q, qd, p, rows, m, out)``: only the rows of the contacts asked for; and
-    ``contact_rows2_s(t, q, qd, p, k1, k2, two)``, one or two rows as tuples, the same terms (the same numbers).
+    """``contact_rows(t, q, qd, p, rows, m, out)``: only the rows of the contacts asked for; and for the held
+    steps on floats, ``contact_pose_s(t, q, p)``, the terms every contact shares that depend on the pose alone
+    (the angles' sines and cosines: a tuple), and ``contact_row_s(t, q, qd, p, pose, k)``, row k as a tuple
+    from them: the same terms, so the same numbers. A held step reads several rows at one pose, and the next
+    step's first stage reads them at the pose its projection ended on: the pose's terms are computed once.
 
     For each contact ``k`` of ``rows[:m]``, ``out[k, :n]`` is row k of
     ``phi_q``, ``out[k, n]`` its ``gap_bias``, ``out[k, n + 1]`` its gap and
@@ -258,19 +261,24 @@ def _contact_rows(model: Model, inputs, names) -> list[str]:
     ops = sum(sp.count_ops(rhs) for _, rhs in needed) + sum(sp.count_ops(e) for e in outs)
     branches = len(model.families) > 1
 
-    def head(signature: str, doc: str) -> list[str]:
+    def head(signature: str, doc: str, keep=lambda sym, rhs: True, given=(), geometry=True) -> list[str]:
+        """The function's first lines: its inputs unpacked, the contacts' geometry tuples (where `geometry`),
+        the `given` lines, and the shared terms that `keep`."""
         lines = [f"def {signature}:", f'    """{doc}"""', "    # Unpack inputs"]
         for arg in ("t", "q", "qd", "p"):
             for sym, (name, slot) in inputs[arg].items():
                 if sym in used and slot:
                     lines.append(f"    {name} = {slot}")
-        lines.append("    # Each contact's geometry, by its index in its family")
-        for family in model.families:
-            for j, sym in enumerate(family.symbols):
-                entries = [repr(float(v[j])) if v[j].is_Number else printer.doprint(v[j]) for v in family.values]
-                lines.append(f"    {local[sym]}s = ({', '.join(entries)},)")
-        lines.append(f"    # Terms shared by every contact ({len(shared)})")
-        lines += [f"    {printer.doprint(sym)} = {printer.doprint(rhs)}" for sym, rhs in shared]
+        if geometry:
+            lines.append("    # Each contact's geometry, by its index in its family")
+            for family in model.families:
+                for j, sym in enumerate(family.symbols):
+                    entries = [repr(float(v[j])) if v[j].is_Number else printer.doprint(v[j]) for v in family.values]
+                    lines.append(f"    {local[sym]}s = ({', '.join(entries)},)")
+        lines += given
+        terms = [(sym, rhs) for sym, rhs in shared if keep(sym, rhs)]
+        lines.append(f"    # Terms shared by every contact ({len(terms)})")
+        lines += [f"    {printer.doprint(sym)} = {printer.doprint(rhs)}" for sym, rhs in terms]
         return lines
 
     def contact(at: str, write) -> list[str]:
@@ -297,16 +305,24 @@ def _contact_rows(model: Model, inputs, names) -> list[str]:
     rows += contact("        ", lambda pad, es: [f"{pad}out[k, {i}] = {_number(printer, e)}" for i, e in enumerate(es)])
     rows += [f"    # Total ops: {ops}", "    return"]
 
-    def as_tuple(name):
-        return lambda pad, es: [f"{pad}{name} = ({', '.join(_number(printer, e) for e in es)})"]
-
-    pair = head("contact_rows2_s(t, q, qd, p, k1, k2, two)",
-                f"Rows k1 and, where two, k2 of contact_rows() as tuples of {n + 3} (q, qd tuples; else k1's twice): "
-                "the held step's hot path (jackbox.engine.flight.ride).")
-    pair += ["    k = k1"] + contact("    ", as_tuple("r1"))
-    pair += ["    r2 = r1", "    if two:", "        k = k2"] + contact("        ", as_tuple("r2"))
-    pair += [f"    # Total ops: {ops} (a row more)", "    return r1, r2"]
-    return ["\n".join(rows) + "\n", "\n".join(pair) + "\n"]
+    # the shared terms of the pose alone (no rate in them, transitively): once per pose on floats
+    moving: set[sp.Symbol] = set()
+    for sym, rhs in shared:
+        if rhs.free_symbols & (set(model.qd) | moving):
+            moving.add(sym)
+    pose = [sym for sym, _ in shared if sym not in moving]
+    names_of = ", ".join(printer.doprint(sym) for sym in pose) + ("," if len(pose) == 1 else "")
+    at_pose = [line for line in head("contact_pose_s(t, q, p)",
+                                     "The terms of contact_rows() that every contact shares and that depend on the "
+                                     "pose alone, as a tuple: contact_row_s()'s pose (jackbox.engine.flight.ride).",
+                                     lambda sym, rhs: sym not in moving, geometry=False)
+               if " = qd[" not in line] + [f"    return ({names_of})" if pose else "    return (0.0,)"]
+    row = head("contact_row_s(t, q, qd, p, pose, k)",
+               f"Row k of contact_rows() as a tuple of {n + 3} (q, qd tuples), its shared terms of the pose read "
+               "from pose = contact_pose_s(t, q, p): the held step's hot path (jackbox.engine.flight.ride).",
+               lambda sym, rhs: sym in moving, [f"    {names_of} = pose"] if pose else [])
+    row += contact("    ", lambda pad, es: [f"{pad}return ({', '.join(_number(printer, e) for e in es)})"])
+    return ["\n".join(rows) + "\n", "\n".join(at_pose) + "\n", "\n".join(row) + "\n"]
 
 
 #: Tuple arithmetic of length N_DOF emitted with every model (no sympy involved), and the

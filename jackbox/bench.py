@@ -366,8 +366,10 @@ def bench_resting(repeat: int, size: dict) -> dict:
 #: event from 3.246 s to 6.10 s
 RIDE = (3.3, 5.8)
 #: the stretch (s) of the same run whose jack is held in a corner of the tilted box: four contacts held
-#: (two tips on the floor, two on the right wall, one tip in the corner), a redundant set, no event
-CORNER = (8.53, 9.47)
+#: (two tips on the floor, two on the right wall, one tip in the corner), a redundant set, no event from
+#: 8.5425 s to 9.4803 s. (The run is chaotic: a change to the engine's round-off moves these stretches, and
+#: tests/test_benchmarks_smoke.py says so.)
+CORNER = (8.55, 9.47)
 #: the held stretches of shaken at e = 0 that bench_resting times, and how the tables name them
 STRETCHES = {"riding": "riding a shaken floor", "corner": "held in a corner"}
 

@@ -311,9 +311,12 @@ _JITTED = {**{name: "" for name in ("tuple_of", "accel_s", "accel_time_s", "box_
            # a lane near a wall (lanes.calm): phi_s and gap_rate_s inlined, so that LLVM computes the sine
            # and cosine of each angle once for both; no references counted (calm allocates nothing)
            **{name: ', inline="always"' for name in ("phi_s", "gap_rate_s")}, "calm": ", _nrt=False",
-           # the held steps' helpers (flight.ride): each called once in its loop, LLVM inlines them
-           **{name: "" for name in ("factor2", "solve2", "factor4", "solve4", "rows4", "held_stage4", "settle4")},
-           **{name: ', inline="always"' for name in ("held_stage", "settle", "contact_rows2_s")},
+           # the held steps' helpers (flight.ride): inlined by Numba where a call would pass the rows through
+           # memory; a pose's terms (after two sines and cosines, a call costs little) and the factorization
+           # of three or four rows (a function of its own: inlined, it adds seconds of compiling) left to LLVM
+           **{name: "" for name in ("factor2", "solve2", "factor4", "solve4", "contact_pose_s")},
+           **{name: ', inline="always"' for name in ("contact_row_s", "held_rows", "factor_held", "held_push",
+                                                      "held_stage", "settle")},
            "trade": ", _nrt=False"}
 
 

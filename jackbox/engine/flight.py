@@ -17,11 +17,11 @@ integrates on floats only and looks at no gap row: the broad phase
 
 With one to four contacts held, the held loop (:func:`jackbox.engine.loop.hold`)
 hands its steps to :func:`ride`, the same step on floats (the model's
-``contact_rows2_s`` and the held solve on tuples): its own part, compiled
-when a run first holds a contact (``jackbox.loader.Kernel.ride``; until then a
-stub that takes no step). A step riding a shaken floor on two tips took 0.45
-of its time on the held loop's arrays, and one of a jack held in a corner of
-the shaken box on four (:func:`held_stage4`) 0.65.
+``contact_pose_s`` and ``contact_row_s`` and the held solve on tuples): its
+own part, compiled when a run first holds a contact
+(``jackbox.loader.Kernel.ride``; until then a stub that takes no step). A step
+riding a shaken floor on two tips took 0.45 of its time on the held loop's
+arrays, and one of a jack held in a corner of the shaken box on four 0.65.
 """
 
 import math
@@ -196,185 +196,181 @@ def free_step(t, t_next, q_in, qd_in, dt, p, q_out, qd_out):
 
 def factor2(A11, A12, A22):
     """The factorization of a held pair's 2 x 2 matrix as :func:`jackbox.engine.impact.factor_rows` makes it:
-    (1 / L11 or 0, L21, 1 / L22 or 0), a row that depends on the one before it (what is left of its diagonal
+    (1 / D11 or 0, L21, 1 / D22 or 0), a row that depends on the one before it (what is left of its diagonal
     below RANK_TOL of it) given no force."""
-    r1, L21, r2 = 0.0, 0.0, 0.0
+    g1, L21, u21, g2 = 0.0, 0.0, 0.0, 0.0
     if A11 > _RANK_TOL * A11:
-        r1 = 1.0 / math.sqrt(A11)
-        L21 = A12 * r1
-    d = A22 - L21 * L21
+        g1 = 1.0 / A11
+        u21 = A12
+        L21 = A12 * g1
+    d = A22 - L21 * u21
     if d > _RANK_TOL * A22:
-        r2 = 1.0 / math.sqrt(d)
-    return r1, L21, r2
+        g2 = 1.0 / d
+    return g1, L21, g2
 
 
-def solve2(r1, L21, r2, b1, b2):
+def solve2(g1, L21, g2, b1, b2):
     """``x`` for ``A x = b`` with A factored by :func:`factor2` (:func:`jackbox.engine.impact.solve_rows`)."""
-    y1 = b1 * r1
-    y2 = (b2 - L21 * y1) * r2
-    x2 = y2 * r2
-    return (y1 - L21 * x2) * r1, x2
-
-
-def held_stage(t, q, qd, p, tt, w, m, k1, k2):
-    """An RK4 stage of a held step: the accelerations with contact k1 (and k2 where m = 2) held.
-
-    The operations of :func:`jackbox.engine.modes.held_accel` (the model's
-    accelerations, the held rows, the contact matrix, its factorization, the
-    solve and the response) in their order, on tuples: the same numbers.
-    Returns ``(accelerations, force 1, force 2, A11, A22)``.
-    """
-    a = accel_s(t, q, qd, p, tt)
-    r1, r2 = contact_rows2_s(t, q, qd, p, k1, k2, m == 2)
-    A11 = wdot_s(r1, w, r1)
-    if m == 1:
-        f1, _, _ = factor2(A11, 0.0, 1.0)
-        x1 = -row_dot_s(r1, a) * f1 * f1
-        return respond_s(a, w, r1, x1), x1, 0.0, A11, 1.0
-    A12 = wdot_s(r1, w, r2)
-    A22 = wdot_s(r2, w, r2)
-    f1, L21, f2 = factor2(A11, A12, A22)
-    x1, x2 = solve2(f1, L21, f2, -row_dot_s(r1, a), -row_dot_s(r2, a))
-    return respond2_s(a, w, r1, x1, r2, x2), x1, x2, A11, A22
-
-
-def settle(t, q, qd, p, w, m, k1, k2, level, drift, h):
-    """:func:`jackbox.engine.modes.settle_rows` on tuples, for one or two held rows: returns ``(q, qd)``.
-
-    The rows at (t, q, qd), factored; where a gap drifted past round-off, one
-    Newton pass on the gaps (:func:`jackbox.engine.modes.project_rows`) and the
-    rows read again where it ends; the rates projected with the first
-    factorization.
-    """
-    gap, rate = N_DOF + 1, N_DOF + 2
-    f1, L21, f2 = 1.0, 0.0, 1.0
-    for j in range(2):
-        r1, r2 = contact_rows2_s(t, q, qd, p, k1, k2, m == 2)
-        if j == 0:
-            if m == 1:
-                f1, L21, f2 = factor2(wdot_s(r1, w, r1), 0.0, 1.0)
-            else:
-                f1, L21, f2 = factor2(wdot_s(r1, w, r1), wdot_s(r1, w, r2), wdot_s(r2, w, r2))
-            on = abs(r1[gap] + level) <= drift and abs(r1[rate]) * h <= drift
-            if m == 2:
-                on = on and abs(r2[gap] + level) <= drift and abs(r2[rate]) * h <= drift
-            if on:
-                break
-            if m == 1:
-                q = respond_s(q, w, r1, -(r1[gap] + level) * f1 * f1)
-            else:
-                x1, x2 = solve2(f1, L21, f2, -(r1[gap] + level), -(r2[gap] + level))
-                q = respond2_s(q, w, r1, x1, r2, x2)
-    if m == 1:
-        return q, respond_s(qd, w, r1, -r1[rate] * f1 * f1)
-    x1, x2 = solve2(f1, L21, f2, -r1[rate], -r2[rate])
-    return q, respond2_s(qd, w, r1, x1, r2, x2)
+    y2 = b2 - L21 * b1
+    x2 = y2 * g2
+    return b1 * g1 - L21 * x2, x2
 
 
 def factor4(w, m, r1, r2, r3, r4):
     """The held rows' matrix (:func:`jackbox.engine.impact.contact_matrix`, entry by entry) for three or four
     rows (m; r4 is r3 again where m = 3), factored as :func:`jackbox.engine.impact.factor_rows` factors it, its
-    operations in their order. Returns ``((r1, r2, r3, r4, L21, L31, L32, L41, L42, L43), A11, A22, A33, A44)``:
-    r the reciprocals of L's diagonal, 0 for a row that depends on those before it (a redundant set: a jack flush
-    in a corner) and its column of L 0; where m = 3, row 4's reciprocal and entries of L are 0 (and A14..A44,
-    1.0, are read by nothing)."""
+    operations in their order. Returns ``((g1, g2, g3, g4, L21, L31, L32, L41, L42, L43), A11, A22, A33, A44)``:
+    g the reciprocals of D, 0 for a row that depends on those before it (a redundant set: a jack flush in a
+    corner) and its column of L 0; where m = 3, row 4's reciprocal and entries of L are 0 (and A14..A44,
+    1.0, are read by nothing). The u are L's entries before their scaling (factor_rows' upper triangle)."""
     A11, A12, A13 = wdot_s(r1, w, r1), wdot_s(r1, w, r2), wdot_s(r1, w, r3)
     A22, A23, A33 = wdot_s(r2, w, r2), wdot_s(r2, w, r3), wdot_s(r3, w, r3)
     A14 = A24 = A34 = A44 = 1.0
     if m == 4:
         A14, A24, A34, A44 = wdot_s(r1, w, r4), wdot_s(r2, w, r4), wdot_s(r3, w, r4), wdot_s(r4, w, r4)
-    f1 = f2 = f3 = f4 = 0.0
+    g1 = g2 = g3 = g4 = 0.0
     L21 = L31 = L32 = L41 = L42 = L43 = 0.0
+    u21 = u31 = u32 = u41 = u42 = u43 = 0.0
     if A11 > _RANK_TOL * A11:
-        f1 = 1.0 / math.sqrt(A11)
-        L21 = A12 * f1
-        L31 = A13 * f1
+        g1 = 1.0 / A11
+        u21, u31 = A12, A13
+        L21, L31 = A12 * g1, A13 * g1
         if m == 4:
-            L41 = A14 * f1
-    d = A22 - L21 * L21
+            u41 = A14
+            L41 = A14 * g1
+    d = A22 - L21 * u21
     if d > _RANK_TOL * A22:
-        f2 = 1.0 / math.sqrt(d)
-        L32 = (A23 - L31 * L21) * f2
+        g2 = 1.0 / d
+        u32 = A23 - L31 * u21
+        L32 = u32 * g2
         if m == 4:
-            L42 = (A24 - L41 * L21) * f2
-    d = A33 - L31 * L31
-    d -= L32 * L32
+            u42 = A24 - L41 * u21
+            L42 = u42 * g2
+    d = A33 - L31 * u31
+    d -= L32 * u32
     if d > _RANK_TOL * A33:
-        f3 = 1.0 / math.sqrt(d)
+        g3 = 1.0 / d
         if m == 4:
-            s = A34 - L41 * L31
-            L43 = (s - L42 * L32) * f3
+            u43 = A34 - L41 * u31
+            u43 -= L42 * u32
+            L43 = u43 * g3
     if m == 4:
-        d = A44 - L41 * L41
-        d -= L42 * L42
-        d -= L43 * L43
+        d = A44 - L41 * u41
+        d -= L42 * u42
+        d -= L43 * u43
         if d > _RANK_TOL * A44:
-            f4 = 1.0 / math.sqrt(d)
-    return (f1, f2, f3, f4, L21, L31, L32, L41, L42, L43), A11, A22, A33, A44
+            g4 = 1.0 / d
+    return (g1, g2, g3, g4, L21, L31, L32, L41, L42, L43), A11, A22, A33, A44
 
 
 def solve4(m, f, b1, b2, b3, b4):
     """``x`` for ``A x = b`` with A factored by :func:`factor4` (:func:`jackbox.engine.impact.solve_rows`, the same
     operations in their order); x4 is 0 where m = 3."""
-    r1, r2, r3, r4, L21, L31, L32, L41, L42, L43 = f
-    y1 = b1 * r1
-    y2 = (b2 - L21 * y1) * r2
-    s = b3 - L31 * y1
-    y3 = (s - L32 * y2) * r3
+    g1, g2, g3, g4, L21, L31, L32, L41, L42, L43 = f
+    y2 = b2 - L21 * b1
+    y3 = b3 - L31 * b1
+    y3 -= L32 * y2
     if m == 4:
-        s = b4 - L41 * y1
-        s -= L42 * y2
-        x4 = (s - L43 * y3) * r4 * r4
-        x3 = (y3 - L43 * x4) * r3
-        s = y2 - L32 * x3
-        x2 = (s - L42 * x4) * r2
-        s = y1 - L21 * x2
-        s -= L31 * x3
-        return (s - L41 * x4) * r1, x2, x3, x4
-    x3 = y3 * r3
-    x2 = (y2 - L32 * x3) * r2
-    s = y1 - L21 * x2
-    return (s - L31 * x3) * r1, x2, x3, 0.0
+        y4 = b4 - L41 * b1
+        y4 -= L42 * y2
+        y4 -= L43 * y3
+        x4 = y4 * g4
+        x3 = y3 * g3 - L43 * x4
+        x2 = y2 * g2 - L32 * x3
+        x2 -= L42 * x4
+        x1 = b1 * g1 - L21 * x2
+        x1 -= L31 * x3
+        return x1 - L41 * x4, x2, x3, x4
+    x3 = y3 * g3
+    x2 = y2 * g2 - L32 * x3
+    x1 = b1 * g1 - L21 * x2
+    return x1 - L31 * x3, x2, x3, 0.0
 
 
-def rows4(t, q, qd, p, m, k1, k2, k3, k4):
-    """The held rows k1..k4 at (t, q, qd) as :func:`held_stage` reads two (where m = 3, r4 is r3 again)."""
-    for c in range(2):      # (one call in a loop: contact_rows2_s, inlined, is compiled once here, not twice)
-        ra, rb = contact_rows2_s(t, q, qd, p, k1 if c == 0 else k3, k2 if c == 0 else k4, c == 0 or m == 4)
-        if c == 0:
-            r1, r2 = ra, rb
-    return r1, r2, ra, rb
+def held_rows(t, q, qd, p, pose, m, k1, k2, k3, k4):
+    """The held rows k1..km at (t, q, qd), from ``pose = contact_pose_s(t, q, p)``: returns ``(r1, r2, r3, r4)``,
+    r2 r1 again where m = 1, r3 and r4 r2 again where m = 2, r4 r3 again where m = 3."""
+    r1 = contact_row_s(t, q, qd, p, pose, k1)
+    r2 = contact_row_s(t, q, qd, p, pose, k2) if m > 1 else r1
+    r3 = r4 = r2
+    for c in range(2, m):   # (one call in a loop: the row's body is compiled once for the two)
+        r = contact_row_s(t, q, qd, p, pose, k3 if c == 2 else k4)
+        if c == 2:
+            r3 = r4 = r
+        else:
+            r4 = r
+    return r1, r2, r3, r4
 
 
-def held_stage4(t, q, qd, p, tt, w, m, k1, k2, k3, k4):
-    """:func:`held_stage` for three or four held rows (a jack in a corner, a redundant set among them): returns
-    ``(accelerations, forces 1..4, A11, A22, A33, A44)``, the same numbers as the held loop's arrays (where
-    m = 3, the fourth row is the third again with no force: adding its 0 changes no sum)."""
+def factor_held(w, m, r1, r2, r3, r4):
+    """The held rows' matrix factored (:func:`factor2` for one or two rows, :func:`factor4` for three or four):
+    ``(f, A11, A22, A33, A44)``, f as :func:`factor4` gives it (for two rows: ``(g1, g2, 0, 0, L21, 0, ...)``),
+    the diagonal 1.0 past the m rows. It depends on the rows' Jacobians alone, so on the pose alone."""
+    if m <= 2:
+        A11 = wdot_s(r1, w, r1)
+        if m == 1:
+            f1, L21, f2 = factor2(A11, 0.0, 1.0)
+            return (f1, f2, 0.0, 0.0, L21, 0.0, 0.0, 0.0, 0.0, 0.0), A11, 1.0, 1.0, 1.0
+        A12 = wdot_s(r1, w, r2)
+        A22 = wdot_s(r2, w, r2)
+        f1, L21, f2 = factor2(A11, A12, A22)
+        return (f1, f2, 0.0, 0.0, L21, 0.0, 0.0, 0.0, 0.0, 0.0), A11, A22, 1.0, 1.0
+    return factor4(w, m, r1, r2, r3, r4)
+
+
+def held_push(a, w, m, f, r1, r2, r3, r4, b1, b2, b3, b4):
+    """The held rows' response to right-hand sides b (their forces for accelerations, their impulses for rates,
+    their corrections for gaps), with the rows factored as f (:func:`factor_held`): returns ``(a + M^-1 J^T x,
+    x1, x2, x3, x4)``, x 0 past the m rows (the operations of :func:`jackbox.engine.modes.held_accel`'s solve
+    and response, in their order)."""
+    if m == 1:
+        x1 = b1 * f[0]
+        return respond_s(a, w, r1, x1), x1, 0.0, 0.0, 0.0
+    if m == 2:
+        x1, x2 = solve2(f[0], f[4], f[1], b1, b2)
+        return respond2_s(a, w, r1, x1, r2, x2), x1, x2, 0.0, 0.0
+    x1, x2, x3, x4 = solve4(m, f, b1, b2, b3, b4)
+    return respond4_s(a, w, r1, x1, r2, x2, r3, x3, r4, x4), x1, x2, x3, x4
+
+
+def held_stage(t, q, qd, p, tt, w, m, r1, r2, r3, r4, f):
+    """An RK4 stage of a held step: the accelerations with the m rows r1.. held, factored as f
+    (:func:`factor_held`). The operations of :func:`jackbox.engine.modes.held_accel` (the model's
+    accelerations, the solve and the response) in their order, on tuples: the same numbers.
+    Returns ``(accelerations, forces 1..4)``."""
     a = accel_s(t, q, qd, p, tt)
-    r1, r2, r3, r4 = rows4(t, q, qd, p, m, k1, k2, k3, k4)
-    f, A11, A22, A33, A44 = factor4(w, m, r1, r2, r3, r4)
-    x1, x2, x3, x4 = solve4(m, f, -row_dot_s(r1, a), -row_dot_s(r2, a), -row_dot_s(r3, a), -row_dot_s(r4, a))
-    return respond4_s(a, w, r1, x1, r2, x2, r3, x3, r4, x4), x1, x2, x3, x4, A11, A22, A33, A44
+    b3 = b4 = 0.0
+    if m > 2:
+        b3, b4 = -row_dot_s(r3, a), -row_dot_s(r4, a)
+    b2 = -row_dot_s(r2, a) if m > 1 else 0.0
+    return held_push(a, w, m, f, r1, r2, r3, r4, -row_dot_s(r1, a), b2, b3, b4)
 
 
-def settle4(t, q, qd, p, w, m, k1, k2, k3, k4, level, drift, h):
-    """:func:`settle` for three or four held rows: returns ``(q, qd)``."""
+def settle(t, q, qd, p, w, m, k1, k2, k3, k4, level, drift, h):
+    """:func:`jackbox.engine.modes.settle_rows` on tuples, for one to four held rows.
+
+    The rows at (t, q, qd), factored; where a gap drifted past round-off, one
+    Newton pass on the gaps (:func:`jackbox.engine.modes.project_rows`) and the
+    rows read again where it ends; the rates projected with the first
+    factorization. Returns ``(q, qd, pose, f, on)``: the pose's terms where it
+    ends (``contact_pose_s``), the factorization and whether it is that pose's
+    (on: no Newton pass), for the next step's first stage.
+    """
     gap, rate = N_DOF + 1, N_DOF + 2
-    f = (1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     for j in range(2):
-        r1, r2, r3, r4 = rows4(t, q, qd, p, m, k1, k2, k3, k4)
+        pose = contact_pose_s(t, q, p)
+        r1, r2, r3, r4 = held_rows(t, q, qd, p, pose, m, k1, k2, k3, k4)
         if j == 0:
-            f, _, _, _, _ = factor4(w, m, r1, r2, r3, r4)
+            f = factor_held(w, m, r1, r2, r3, r4)
             on = True
-            for r in (r1, r2, r3, r4):      # (where m = 3, r4 is r3)
+            for r in (r1, r2, r3, r4):      # (past the m rows, a row again)
                 on = on and abs(r[gap] + level) <= drift and abs(r[rate]) * h <= drift
             if on:
                 break
-            x1, x2, x3, x4 = solve4(m, f, -(r1[gap] + level), -(r2[gap] + level), -(r3[gap] + level),
-                                    -(r4[gap] + level))
-            q = respond4_s(q, w, r1, x1, r2, x2, r3, x3, r4, x4)
-    x1, x2, x3, x4 = solve4(m, f, -r1[rate], -r2[rate], -r3[rate], -r4[rate])
-    return q, respond4_s(qd, w, r1, x1, r2, x2, r3, x3, r4, x4)
+            q = held_push(q, w, m, f[0], r1, r2, r3, r4, -(r1[gap] + level), -(r2[gap] + level),
+                          -(r3[gap] + level), -(r4[gap] + level))[0]
+    qd = held_push(qd, w, m, f[0], r1, r2, r3, r4, -r1[rate], -r2[rate], -r3[rate], -r4[rate])[0]
+    return q, qd, pose, f, on
 
 
 def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, rec_t, rec_q, rec_qd, io_k,
@@ -383,8 +379,7 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
 
     k1, k2: the held loop's first two rows (k2 = k1 where m = 1); ``io_k[2]``,
     ``io_k[3]``: its third and fourth where m > 2 (the fourth the third again
-    where m = 3), a jack in a corner, a redundant set among them
-    (:func:`held_stage4`, :func:`settle4`).
+    where m = 3), a jack in a corner, a redundant set among them.
 
     The held loop's own step (:func:`jackbox.engine.loop.hold`: its first RK4
     stage, :func:`jackbox.engine.integrator.rk4_rows` in one pass, the release
@@ -406,11 +401,13 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
     at the next; ``io_k[1]``: 1 where the step reached is handed over.
     Returns the step reached.
 
-    The four stages are one loop (its body, with the two rows' terms, is
-    compiled once: written out four times it took 10 s to compile, against
-    3.8 s). Three or four rows go to :func:`held_stage4` and :func:`settle4`,
-    functions of their own that Numba does not inline (inlined, the ride took
-    11-12 s to compile, against 6.8 s; 4.3 s with one or two rows only).
+    The four stages are one loop (its body, with the rows' terms, is compiled
+    once: written out four times it took 10 s to compile, against 3.8 s). A
+    step reads the sines of its pose four times, not five: its first stage
+    takes the pose the last step's projection ended on, and that projection's
+    factorization where it moved no row (:func:`settle`). With the
+    factorization's square roots gone (L D L^T) a step in a corner took 0.72
+    of its time before, 1013 ns against 725, and one riding the floor 0.93.
     """
     io_k[1] = 0
     if not RIDE:
@@ -426,6 +423,12 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
     k3, k4 = io_k[2], io_k[3]
     t_end = math.nan                   # the last step's last stage time, and its terms of time
     tt_end = accel_time_s(t0 + i * dt, p)
+    # the pose's terms and the rows' factorization where the last step's projection ended (carried; factored
+    # where its rows were not moved), for the next step's first stage
+    carried = factored = False
+    pose = contact_pose_s(t0 + i * dt, q, p)
+    f = (1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    A11 = A22 = A33 = A44 = 1.0
     while i < i_stop:
         ta = t0 + i * dt
         tb = t0 + (i + 1) * dt
@@ -435,7 +438,6 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
         tt = tt_end if ta == t_end else accel_time_s(ta, p)
         # the stages: a1..a4 their accelerations, v2..v4 their rates; their forces into ls
         a1 = a2 = a3 = a4 = v2 = v3 = v4 = qd
-        A11 = A22 = A33 = A44 = 1.0
         coast = False
         for s in range(4):
             hs = _NODES[s] * h
@@ -451,12 +453,15 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
                 tt_end = accel_time_s(t_end, p)
                 tt = tt_end
                 ts, qs, vs = t_end, axpy_s(hs, v3, q), axpy_s(hs, a3, qd)
-            if m <= 2:
-                a, x1, x2, A11, A22 = held_stage(ts, qs, vs, p, tt, w, m, k1, k2)
-                x3 = x4 = 0.0
-                A33 = A44 = 1.0
-            else:
-                a, x1, x2, x3, x4, A11, A22, A33, A44 = held_stage4(ts, qs, vs, p, tt, w, m, k1, k2, k3, k4)
+            # the rows, their pose's terms and their factorization: at the first stage, those of the last
+            # step's projection where it ended (the same pose: the same numbers)
+            first = s == 0 and carried
+            if not first:
+                pose = contact_pose_s(ts, qs, p)
+            r1, r2, r3, r4 = held_rows(ts, qs, vs, p, pose, m, k1, k2, k3, k4)
+            if not (first and factored):
+                f, A11, A22, A33, A44 = factor_held(w, m, r1, r2, r3, r4)
+            a, x1, x2, x3, x4 = held_stage(ts, qs, vs, p, tt, w, m, r1, r2, r3, r4, f)
             for j in range(m):
                 ls[s, j] = x1 if j == 0 else x2 if j == 1 else x3 if j == 2 else x4
             if s == 0:
@@ -513,10 +518,9 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
             low -= band
         # the rows back on their level (jackbox.engine.modes.settle_rows): where a gap drifted past
         # round-off, one Newton pass on the gaps and the rates from the rows there; else the rates only
-        if m <= 2:
-            q, qd = settle(tb, qb, qdb, p, w, m, k1, k2, half, drift, h)
-        else:
-            q, qd = settle4(tb, qb, qdb, p, w, m, k1, k2, k3, k4, half, drift, h)
+        q, qd, pose, fac, factored = settle(tb, qb, qdb, p, w, m, k1, k2, k3, k4, half, drift, h)
+        f, A11, A22, A33, A44 = fac
+        carried = True
         for d in range(N_DOF):        # what the projection moved any gap by, at most
             low -= abs(q[d] - qb[d]) * tol[_T_SPEED + d]
         for d in range(N_DOF):

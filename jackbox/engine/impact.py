@@ -16,8 +16,6 @@ accelerations, decides which resting contacts carry a force
 (:mod:`jackbox.engine.modes`).
 """
 
-import math
-
 import numpy as np
 from numba import njit
 
@@ -92,12 +90,13 @@ PGS_SWEEPS, PGS_TOL = 20000, 1e-12
 def factor_rows(A, m, L, rinv):
     """Factor ``A[:m, :m]``, symmetric positive semi-definite, revealing its rank; returns the rank.
 
-    Cholesky, ``A = L L^T`` into L, row after row in the contacts' order,
-    skipping a row that depends on those before it: what is left of its
-    diagonal once they are eliminated is below RANK_TOL of the diagonal (a
-    redundant contact set: a square jack flush in a corner touches four times
-    with three degrees of freedom). Its column of L is zero and its entry of
-    ``rinv`` (the reciprocals of L's diagonal) is 0, so :func:`solve_rows`
+    ``A = L D L^T`` (L unit lower triangular, D diagonal: no square roots,
+    whose latency was a third of a held step's solve), row after row in the
+    contacts' order, skipping a row that depends on those before it: what is
+    left of its diagonal once they are eliminated is below RANK_TOL of the
+    diagonal (a redundant contact set: a square jack flush in a corner touches
+    four times with three degrees of freedom). Its columns of L are zero and
+    its entry of ``rinv`` (the reciprocals of D) is 0, so :func:`solve_rows`
     gives its unknown 0 and the others carry the whole answer: for a
     consistent system (held contacts of one rigid motion) that solves it
     exactly, where a diagonal shift would leave a residual. In a fixed order,
@@ -107,6 +106,10 @@ def factor_rows(A, m, L, rinv):
     would take for a release). One factorization serves several right-hand
     sides (a projection's gaps and rates).
 
+    L's strict lower triangle holds L; its strict upper triangle the same
+    entries before their scaling by D's reciprocal (``L[j, i] = L[i, j] D[j]``,
+    which the later rows' eliminations read).
+
     On the arrays themselves: a call that passed the scratch record would
     pass each of its arrays' fields (some hundred words), which cost more
     than the factorization of a few rows.
@@ -115,20 +118,22 @@ def factor_rows(A, m, L, rinv):
     for j in range(m):
         d = A[j, j]
         for k in range(j):
-            d -= L[j, k] * L[j, k]
+            d -= L[j, k] * L[k, j]
         if d > RANK_TOL * A[j, j]:
             rank += 1
-            r = 1.0 / math.sqrt(d)
+            r = 1.0 / d
             rinv[j] = r
             for i in range(j + 1, m):
                 s = A[i, j]
                 for k in range(j):
-                    s -= L[i, k] * L[j, k]
+                    s -= L[i, k] * L[k, j]
+                L[j, i] = s
                 L[i, j] = s * r
         else:
             rinv[j] = 0.0
             for i in range(j + 1, m):
                 L[i, j] = 0.0
+                L[j, i] = 0.0
     return rank
 
 
@@ -137,17 +142,18 @@ def solve_rows(b, m, L, rinv, y, x):
     """``x`` for ``A x = b`` with A factored by :func:`factor_rows`; the dependent rows' unknowns are 0.
 
     Their reciprocal is 0 and their column of L too, so no row needs a test.
+    b and y may be the same array.
     """
     for j in range(m):
         s = b[j]
         for k in range(j):
             s -= L[j, k] * y[k]
-        y[j] = s * rinv[j]
+        y[j] = s
     for j in range(m - 1, -1, -1):
-        s = y[j]
+        s = y[j] * rinv[j]
         for k in range(j + 1, m):
             s -= L[k, j] * x[k]
-        x[j] = s * rinv[j]
+        x[j] = s
 
 
 @njit(cache=True, no_cpython_wrapper=True)
