@@ -2,6 +2,7 @@
 
     python benchmarks/profile.py ensemble shaken [--lanes] [--n 2000] [--t-end 10] [--seconds 4] [--top 25]
     python benchmarks/profile.py run drop [--t-end 10] ...
+    python benchmarks/profile.py held corner        (or riding: jackbox bench's held stretches)
 
 ``perf`` shows the machine code Numba compiled as ``[JIT]`` addresses without
 names. This script compiles everything in this process (a cache folder of its

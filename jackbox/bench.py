@@ -704,7 +704,7 @@ def markdown(result: dict) -> str:
                 f"In a corner: the same run from {corner['from']:g} s to {corner['to']:g} s, the jack wedged in a "
                 "corner of the tilted box (one tip in the corner, touching both walls, one on each wall): four "
                 "rows held with three degrees of freedom between them, so the held solve gives the row that "
-                "depends on the others no force. Taken on floats too (`flight.held_stage4`).",
+                "depends on the others no force. Taken on floats too (`flight.ride`, `flight.factor4`).",
             ]
     else:
         lines.append(f"Unavailable: {r.get('reason', 'not measured')}.")

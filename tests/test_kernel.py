@@ -361,12 +361,14 @@ def test_the_two_codings_of_rk4_give_the_same_steps_bit_for_bit(name):
     np.testing.assert_array_equal(qda, qdb)
 
 
-def test_the_solve_on_three_or_four_rows_is_the_held_loops_to_the_bit():
-    # flight.factor4, solve4 and the emitted respond4_s (a jack wedged in a corner, on floats) against the
-    # held loop's contact_matrix, factor_rows, solve_rows and add_response, for m = 3 and 4 with no row, and
-    # each row in turn, depending on those before it (the rank-revealing factorization gives it no force):
-    # the same operations in their order, so the same bits, whichever row drops out. (Both sides are
-    # called from compiled code: the engine's functions have no Python wrapper.)
+def test_the_held_solve_on_floats_is_the_held_loops_to_the_bit_and_solves():
+    # flight.factor_held and held_push (factor2/solve2 for one or two rows, factor4/solve4 for three or four:
+    # a jack wedged in a corner) and the emitted respond*_s, on floats, against the held loop's
+    # contact_matrix, factor_rows, solve_rows and add_response, for m = 1..4 with no row, and each row in
+    # turn, depending on those before it (the rank-revealing factorization gives it no force): the same
+    # operations in their order, so the same bits, whichever row drops out. And the factorization (L D L^T)
+    # solves: A x = b on the rows that stay to round-off. (Both sides are called from compiled code: the
+    # engine's functions have no Python wrapper.)
     from numba import njit
 
     from jackbox import loader
@@ -375,7 +377,7 @@ def test_the_solve_on_three_or_four_rows_is_the_held_loops_to_the_bit():
 
     kernel = loader.kernel_for(jackbox.load_scene("shaken"))
     part = loader._import_part(loader._write_part(kernel._ride_path(), kernel._ride_text()))
-    factor4, solve4, respond4_s = part.factor4, part.solve4, part.respond4_s
+    factor_held, held_push = part.factor_held, part.held_push
 
     @njit
     def on_arrays(jac, winv, ridx, m, A, L, rinv, b, y, x, out):
@@ -387,31 +389,38 @@ def test_the_solve_on_three_or_four_rows_is_the_held_loops_to_the_bit():
 
     @njit
     def on_floats(w, m, r1, r2, r3, r4, b1, b2, b3, b4, a):
-        f, A11, A22, A33, A44 = factor4(w, m, r1, r2, r3, r4)
-        xs = solve4(m, f, b1, b2, b3, b4)
-        return f, (A11, A22, A33, A44), xs, respond4_s(a, w, r1, xs[0], r2, xs[1], r3, xs[2], r4, xs[3])
+        f, A11, A22, A33, A44 = factor_held(w, m, r1, r2, r3, r4)
+        got, x1, x2, x3, x4 = held_push(a, w, m, f, r1, r2, r3, r4, b1, b2, b3, b4)
+        return f, (A11, A22, A33, A44), (x1, x2, x3, x4), got
 
     rng = np.random.default_rng(11)
     winv = rng.uniform(0.05, 2.0, 6)
     w = tuple(winv)
     dropped = 0
-    for m in (3, 4):
-        for dep in range(-1, m):
-            jac = rng.normal(size=(m, 9))
-            if dep == 0:
-                jac[0, :6] = 0.0                             # no row before it: a zero row
-            elif dep > 0:                                      # a combination of the rows before it
-                jac[dep, :6] = rng.normal(size=dep) @ jac[:dep, :6]
-            A, L, rinv = np.zeros((4, 4)), np.zeros((4, 4)), np.zeros(4)
-            b, a = rng.normal(size=4), rng.normal(size=6)
-            x, out = np.zeros(4), a.copy()
-            rank = on_arrays(jac, winv, np.arange(m), m, A, L, rinv, b, np.zeros(4), x, out)
-            dropped += rank < m
-            r = [tuple(row) for row in jac] + ([tuple(jac[2])] if m == 3 else [])
-            f, diagonal, xs, got = on_floats(w, m, *r, *b, tuple(a))
-            assert f[:m] == tuple(rinv[:m]) and diagonal[:m] == tuple(np.diag(A)[:m]), (m, dep)
-            assert (f[4], f[5], f[6]) == (L[1, 0], L[2, 0], L[2, 1]), (m, dep)
-            assert m == 3 or (f[7], f[8], f[9]) == (L[3, 0], L[3, 1], L[3, 2]), (m, dep)
-            assert xs[:m] == tuple(x[:m]) and (m == 4 or xs[3] == 0.0), (m, dep)
-            assert got == tuple(out), (m, dep)
-    assert dropped == 7          # (each dependent row did drop out, and no other)
+    for m, dep, _ in ((m, dep, trial) for m in (1, 2, 3, 4) for dep in range(-1, m) for trial in range(20)):
+        jac = rng.normal(size=(m, 9))
+        if dep == 0:
+            jac[0, :6] = 0.0                             # no row before it: a zero row
+        elif dep > 0:                                      # a combination of the rows before it
+            jac[dep, :6] = rng.normal(size=dep) @ jac[:dep, :6]
+        A, L, rinv = np.zeros((4, 4)), np.zeros((4, 4)), np.zeros(4)
+        b, a = rng.normal(size=4), rng.normal(size=6)
+        x, out = np.zeros(4), a.copy()
+        rank = on_arrays(jac, winv, np.arange(m), m, A, L, rinv, b, np.zeros(4), x, out)
+        dropped += rank < m
+        r = [tuple(row) for row in jac]
+        r += [r[-1]] * (4 - m)                             # the rows past m, as flight.held_rows pads them
+        f, diagonal, xs, got = on_floats(w, m, *r, *b, tuple(a))
+        assert f[:m] == tuple(rinv[:m]) and diagonal[:m] == tuple(np.diag(A)[:m]), (m, dep)
+        lower = [(1, 0), (2, 0), (2, 1), (3, 0), (3, 1), (3, 2)]
+        assert all(f[4 + j] == (L[i, k] if i < m else 0.0) for j, (i, k) in enumerate(lower)), (m, dep)
+        assert xs[:m] == tuple(x[:m]) and xs[m:] == (0.0,) * (4 - m), (m, dep)
+        assert got == tuple(out), (m, dep)
+        # it solves: the rows that stay, A x = b; a dropped row's unknown 0
+        kept = [i for i in range(m) if i != dep]
+        assert rank == len(kept) and (dep < 0 or x[dep] == 0.0), (m, dep)
+        if kept:
+            sub = A[np.ix_(kept, kept)]
+            np.testing.assert_allclose(sub @ x[kept], b[kept], rtol=0, atol=1e-10 * np.abs(sub).max()
+                                       * np.abs(x[kept]).max() + 1e-12)
+    assert dropped == 10 * 20    # (each dependent row did drop out, and no other; 20 draws of each)
