@@ -86,6 +86,8 @@ def main(argv=None) -> int:
     parser.add_argument("--seconds", type=float, default=4.0, help="how long perf records (default: 4)")
     parser.add_argument("--top", type=int, default=25, help="functions to list (default: 25)")
     args = parser.parse_args(argv)
+    if args.what == "held" and args.scene not in ("riding", "corner"):
+        parser.error(f"held: riding or corner, not {args.scene!r}")
     perf = shutil.which("perf")
     if perf is None:
         parser.error("perf is not installed (Debian: apt-get install linux-perf)")

@@ -261,11 +261,12 @@ def _contact_rows(model: Model, inputs, names) -> list[str]:
     ops = sum(sp.count_ops(rhs) for _, rhs in needed) + sum(sp.count_ops(e) for e in outs)
     branches = len(model.families) > 1
 
-    def head(signature: str, doc: str, keep=lambda sym, rhs: True, given=(), geometry=True) -> list[str]:
-        """The function's first lines: its inputs unpacked, the contacts' geometry tuples (where `geometry`),
-        the `given` lines, and the shared terms that `keep`."""
+    def head(signature: str, doc: str, keep=lambda sym, rhs: True, given=(), geometry=True,
+             args=("t", "q", "qd", "p")) -> list[str]:
+        """The function's first lines: its inputs `args` unpacked, the contacts' geometry tuples (where
+        `geometry`), the `given` lines, and the shared terms that `keep`."""
         lines = [f"def {signature}:", f'    """{doc}"""', "    # Unpack inputs"]
-        for arg in ("t", "q", "qd", "p"):
+        for arg in args:
             for sym, (name, slot) in inputs[arg].items():
                 if sym in used and slot:
                     lines.append(f"    {name} = {slot}")
@@ -312,11 +313,11 @@ def _contact_rows(model: Model, inputs, names) -> list[str]:
             moving.add(sym)
     pose = [sym for sym, _ in shared if sym not in moving]
     names_of = ", ".join(printer.doprint(sym) for sym in pose) + ("," if len(pose) == 1 else "")
-    at_pose = [line for line in head("contact_pose_s(t, q, p)",
-                                     "The terms of contact_rows() that every contact shares and that depend on the "
-                                     "pose alone, as a tuple: contact_row_s()'s pose (jackbox.engine.flight.ride).",
-                                     lambda sym, rhs: sym not in moving, geometry=False)
-               if " = qd[" not in line] + [f"    return ({names_of})" if pose else "    return (0.0,)"]
+    at_pose = head("contact_pose_s(t, q, p)",
+                   "The terms of contact_rows() that every contact shares and that depend on the pose alone, as a "
+                   "tuple: contact_row_s()'s pose (jackbox.engine.flight.ride).",
+                   lambda sym, rhs: sym not in moving, geometry=False, args=("t", "q", "p"))
+    at_pose.append(f"    return ({names_of})" if pose else "    return (0.0,)")
     row = head("contact_row_s(t, q, qd, p, pose, k)",
                f"Row k of contact_rows() as a tuple of {n + 3} (q, qd tuples), its shared terms of the pose read "
                "from pose = contact_pose_s(t, q, p): the held step's hot path (jackbox.engine.flight.ride).",

@@ -87,10 +87,12 @@ def test_generated_functions_match_lambdified_twins(name, all_scenes):
 def test_contact_rows_are_the_lambdified_rows_of_the_contacts_asked_for(name, all_scenes):
     # contact_rows writes the gap form of each family once (jack point against a wall, box
     # corner against the ground) with the contact's geometry read by its index: each row must be
-    # that contact's row of phi_q, gap_bias, phi and gap_rate, and the rows not asked for untouched
+    # that contact's row of phi_q, gap_bias, phi and gap_rate, and the rows not asked for untouched.
+    # And the held steps' rows on floats (contact_row_s, from contact_pose_s's terms of the pose) are
+    # contact_rows' to the bit (a prescribed box's pose depends on t: hand)
     scene = all_scenes[name]
     gen = loader.load_kernel(loader.ensure_model(scene))
-    rows_of = gen.jit("contact_rows")
+    rows_of, pose_of, row_of = gen.jit("contact_rows"), gen.jit("contact_pose_s"), gen.jit("contact_row_s")
     ref = reference.functions(scene)
     n, C = gen.N_DOF, gen.N_CONTACT
     rng = np.random.default_rng(zlib.crc32(name.encode()))
@@ -104,6 +106,9 @@ def test_contact_rows_are_the_lambdified_rows_of_the_contacts_asked_for(name, al
         np.testing.assert_allclose(out[asked], want[asked], rtol=1e-12, atol=1e-12 * scale,
                                    err_msg=f"{name} rows {asked} at t={t}, q={q}, qd={qd}")
         assert np.isnan(np.delete(out, asked, axis=0)).all()
+        pose = pose_of(t, tuple(q), p)
+        for k in asked:
+            assert row_of(t, tuple(q), tuple(qd), p, pose, k) == tuple(out[k]), (name, k, t, q, qd)
 
 
 def _call(fn, shape, *args):

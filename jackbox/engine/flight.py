@@ -403,11 +403,13 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
 
     The four stages are one loop (its body, with the rows' terms, is compiled
     once: written out four times it took 10 s to compile, against 3.8 s). A
-    step reads the sines of its pose four times, not five: its first stage
-    takes the pose the last step's projection ended on, and that projection's
-    factorization where it moved no row (:func:`settle`). With the
-    factorization's square roots gone (L D L^T) a step in a corner took 0.72
-    of its time before, 1013 ns against 725, and one riding the floor 0.93.
+    step reads its pose's sines four times (five where its projection takes a
+    Newton pass), where reading the rows took five to twelve: a stage reads
+    all its rows from one pose (:func:`held_rows`), and the first stage takes
+    the pose the last step's projection ended on, and that projection's
+    factorization where it moved no row (:func:`settle`). With that and the
+    factorization's square roots gone (L D L^T), a step in a corner takes
+    725 ns against 1000 before, one riding the floor 470 against 510.
     """
     io_k[1] = 0
     if not RIDE:
@@ -424,8 +426,8 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
     t_end = math.nan                   # the last step's last stage time, and its terms of time
     tt_end = accel_time_s(t0 + i * dt, p)
     # the pose's terms and the rows' factorization where the last step's projection ended (carried; factored
-    # where its rows were not moved), for the next step's first stage
-    carried = factored = False
+    # where its rows were not moved), for the next step's first stage: to begin with, the pose of step i
+    carried, factored = True, False
     pose = contact_pose_s(t0 + i * dt, q, p)
     f = (1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     A11 = A22 = A33 = A44 = 1.0

@@ -275,7 +275,7 @@ def scratch(model):
         k[SK * C:],                                     # a copy of the modes
         f[d:d + C * C].reshape((C, C)),                 # a contact matrix
         f[d + C * C:d + 2 * C * C].reshape((C, C)),     # the LCP's sub-matrix
-        f[d + 2 * C * C:e].reshape((C, C)),             # the dense solver's working copy
+        f[d + 2 * C * C:e].reshape((C, C)),             # the dense solver's working copy; the held rows' L D L^T
         f[e:e + 2],                                     # a cubic's stationary points
         f[e + 2:],                                      # a prescribed box's state
     )
