@@ -425,9 +425,9 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
     k3, k4 = io_k[2], io_k[3]
     t_end = math.nan                   # the last step's last stage time, and its terms of time
     tt_end = accel_time_s(t0 + i * dt, p)
-    # the pose's terms and the rows' factorization where the last step's projection ended (carried; factored
-    # where its rows were not moved), for the next step's first stage: to begin with, the pose of step i
-    carried, factored = True, False
+    # the pose's terms where the last step's projection ended, and the rows' factorization there where the
+    # projection moved no row (factored), for the next step's first stage: to begin with, step i's pose
+    factored = False
     pose = contact_pose_s(t0 + i * dt, q, p)
     f = (1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     A11 = A22 = A33 = A44 = 1.0
@@ -457,11 +457,10 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
                 ts, qs, vs = t_end, axpy_s(hs, v3, q), axpy_s(hs, a3, qd)
             # the rows, their pose's terms and their factorization: at the first stage, those of the last
             # step's projection where it ended (the same pose: the same numbers)
-            first = s == 0 and carried
-            if not first:
+            if s > 0:
                 pose = contact_pose_s(ts, qs, p)
             r1, r2, r3, r4 = held_rows(ts, qs, vs, p, pose, m, k1, k2, k3, k4)
-            if not (first and factored):
+            if not (s == 0 and factored):
                 f, A11, A22, A33, A44 = factor_held(w, m, r1, r2, r3, r4)
             a, x1, x2, x3, x4 = held_stage(ts, qs, vs, p, tt, w, m, r1, r2, r3, r4, f)
             for j in range(m):
@@ -522,7 +521,6 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
         # round-off, one Newton pass on the gaps and the rates from the rows there; else the rates only
         q, qd, pose, fac, factored = settle(tb, qb, qdb, p, w, m, k1, k2, k3, k4, half, drift, h)
         f, A11, A22, A33, A44 = fac
-        carried = True
         for d in range(N_DOF):        # what the projection moved any gap by, at most
             low -= abs(q[d] - qb[d]) * tol[_T_SPEED + d]
         for d in range(N_DOF):
