@@ -308,11 +308,7 @@ def factor_held(w, m, r1, r2, r3, r4):
     the diagonal 1.0 past the m rows. It depends on the rows' Jacobians alone, so on the pose alone."""
     if m <= 2:
         A11 = wdot_s(r1, w, r1)
-        if m == 1:
-            f1, L21, f2 = factor2(A11, 0.0, 1.0)
-            return (f1, f2, 0.0, 0.0, L21, 0.0, 0.0, 0.0, 0.0, 0.0), A11, 1.0, 1.0, 1.0
-        A12 = wdot_s(r1, w, r2)
-        A22 = wdot_s(r2, w, r2)
+        A12, A22 = (wdot_s(r1, w, r2), wdot_s(r2, w, r2)) if m == 2 else (0.0, 1.0)
         f1, L21, f2 = factor2(A11, A12, A22)
         return (f1, f2, 0.0, 0.0, L21, 0.0, 0.0, 0.0, 0.0, 0.0), A11, A22, 1.0, 1.0
     return factor4(w, m, r1, r2, r3, r4)
