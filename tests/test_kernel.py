@@ -329,14 +329,18 @@ def test_a_step_near_a_wall_is_the_step_fly_would_take():
 @pytest.mark.parametrize("name", ["shaken", "spring", "drop"])
 def test_the_two_codings_of_rk4_give_the_same_steps_bit_for_bit(name):
     # The RK4 tableau is written once (jackbox/engine/integrator.py) and coded
-    # twice: on arrays (the engine's step, for any model size and with
-    # persistent contacts held) and on tuples (the model's free_step and fly,
-    # compiled with the model). With nothing held they must agree to the last
-    # bit, step after step (the exact method mixes them within one run).
+    # twice: on arrays (rk4_rows, for any model size and with persistent
+    # contacts held) and on tuples (the model's free_step and fly, compiled
+    # with the model). With nothing held they must agree to the last bit, step
+    # after step (the held loop's arrays and the ride on floats share the
+    # tableau's order). And the engine's step function value with nothing held
+    # is the model's free_step (the exact loop's re-steps in an event search).
     import numba
 
     from jackbox import loader
-    from jackbox.engine.records import MODEL_AT, STAGES_AT, ModelType, StagesType, from_table, scratch
+    from jackbox.engine.integrator import rk4_rows
+    from jackbox.engine.records import (FLAGS, LAM, LS, MODEL_AT, PASSES_AT, RHS, RIDX, RINV, STAGES_AT, WINV,
+                                        ModelType, StagesType, from_table, scratch)
 
     run = api.prepare(name)
     kernel = loader.kernel_for(run.scene)
@@ -348,17 +352,21 @@ def test_the_two_codings_of_rk4_give_the_same_steps_bit_for_bit(name):
         stages = from_table(table, STAGES_AT, StagesType)
         ws = scratch(model)
         qa, qda, qb, qdb = q.copy(), qd.copy(), q.copy(), qd.copy()
+        qc, qdc = q.copy(), qd.copy()
         for i in range(steps):
-            stages.step(model, i * dt, qa, qda, dt, p, qa, qda, 0, ws)
+            rk4_rows(model, i * dt, qa, qda, dt, p, qa, qda, 0, ws.work, ws.c[LS:LS + 4], ws.k[RIDX], ws.jac,
+                     ws.n[WINV], ws.A, ws.lu, ws.c[RINV], ws.c[RHS], ws.c[LAM], ws.k[FLAGS, PASSES_AT],
+                     False, False)
             model.free_step(i * dt, i * dt + dt, qb, qdb, dt, p, qb, qdb)     # (rk4's last stage time)
-        return qa, qda, qb, qdb
+            stages.step(model, i * dt, qc, qdc, dt, p, qc, qdc, 0, ws)
+        return qa, qda, qb, qdb, qc, qdc
 
     rng = np.random.default_rng(7)
     qd0 = run.qd + rng.uniform(-1.0, 1.0, run.qd.shape)          # some spin and drift on every coordinate
-    qa, qda, qb, qdb = both(kernel.table(), run.q.copy(), qd0, run.p, run.dt, 300)
+    qa, qda, qb, qdb, qc, qdc = both(kernel.table(), run.q.copy(), qd0, run.p, run.dt, 300)
     assert np.all(np.isfinite(qa)) and np.abs(qa - run.q).max() > 1e-3   # it moved
-    np.testing.assert_array_equal(qa, qb)
-    np.testing.assert_array_equal(qda, qdb)
+    for x, y in ((qa, qb), (qda, qdb), (qc, qb), (qdc, qdb)):
+        np.testing.assert_array_equal(x, y)
 
 
 def test_the_held_solve_on_floats_is_the_held_loops_to_the_bit_and_solves():

@@ -40,9 +40,13 @@ def rk4(model, t, q, qd, dt, p, q_out, qd_out, m, ws):
     them: :func:`jackbox.engine.events.first_release`), their matrix at the
     last stage in ``ws.A``.
     """
+    if m == 0:
+        # free flight: the model's own step on floats (its stage times t + dt / 2 and t + dt are rk4_rows',
+        # so the same numbers), with its time terms read three times a step, not four
+        model.free_step(t, t + dt, q, qd, dt, p, q_out, qd_out)
+        return
     winv = ws.n[WINV]
-    if m > 0:
-        model.inverse_mass(p, winv)
+    model.inverse_mass(p, winv)
     rk4_rows(model, t, q, qd, dt, p, q_out, qd_out, m, ws.work, ws.c[LS:LS + 4], ws.k[RIDX], ws.jac, winv,
              ws.A, ws.lu, ws.c[RINV], ws.c[RHS], ws.c[LAM], ws.k[FLAGS, PASSES_AT], np.bool_(False), np.bool_(False))
 
