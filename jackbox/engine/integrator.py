@@ -38,7 +38,9 @@ def rk4(model, t, q, qd, dt, p, q_out, qd_out, m, ws):
     is the same function of its length throughout an event search); their forces at the
     four stages are left in ``ws.c[LS + stage, :m]`` (the release test reads
     them: :func:`jackbox.engine.events.first_release`), their matrix at the
-    last stage in ``ws.A``.
+    last stage in ``ws.A``. With none (m = 0) it is the model's own ``free_step``
+    on floats, the same numbers as :func:`rk4_rows` (the re-steps of an event
+    search: an impact step of shaken took 0.85 of its time so, against arrays).
     """
     if m == 0:
         # free flight: the model's own step on floats (its stage times t + dt / 2 and t + dt are rk4_rows',
