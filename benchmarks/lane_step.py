@@ -95,12 +95,13 @@ def main(argv=None) -> int:
 
     live, quiet = np.ones(W, np.int64), np.zeros(W, np.int64)
     dt = 1e-6
-    lanes(0.0, dt, 0, 10, fresh(), p, tol, live, quiet)
+    never = numba.njit(lambda t, t_next, dt, S, lane, at, to, p, tol: -1)   # (free flight: no event to take)
+    lanes(0.0, dt, 0, 10, fresh(), p, tol, live, quiet, never)
     times = []
     for _ in range(args.repeat):
         S = fresh()
         t0 = time.perf_counter()
-        reached = lanes(0.0, dt, 0, args.steps, S, p, tol, live, quiet)
+        reached = lanes(0.0, dt, 0, args.steps, S, p, tol, live, quiet, never)
         times.append(time.perf_counter() - t0)
         if reached != args.steps:
             raise SystemExit(f"the block stopped at step {reached}: not free flight")

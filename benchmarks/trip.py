@@ -21,9 +21,14 @@ of ``--repeat`` batches of calls):
   call (its records' fields as arguments), the scratch's allocation and
   views, and their reference counts;
 * **whole run**: the member's whole run through ``run_segment`` in one call,
-  per step (the hot path's steps, impacts included).
+  per step (the hot path's steps, impacts included);
+* **in a lane**: the impact step as a block's lanes now take it where it is a
+  plain one (one impact, no contact coming to rest: ``lanes.event_lane``, the
+  model's ``lane_event`` part, on floats), from the same state and the lanes'
+  trial, without a trip.
 
-Also checked, not timed: each way of calling ends the step in the same bits.
+Also checked, not timed: each way of calling ends the step in the same bits
+(the lane's too, where it takes the step).
 Writes ``trip.json`` and ``trip.md`` to ``--out``; the README quotes the
 table. ``--quick`` runs small sizes (tests/test_benchmarks_smoke.py).
 """
@@ -42,6 +47,7 @@ from numba import njit
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from jackbox import loader  # noqa: E402
 from jackbox.bench import command_line, machine  # noqa: E402
 from jackbox.engine import members as M  # noqa: E402
 from jackbox.engine.loop import exact_steps  # noqa: E402
@@ -139,6 +145,28 @@ def whole_run(table, q0, qd0, p, tol, dt, n_steps):
     return tally[M.TALLY_IMPULSES]
 
 
+def lane_harness(kernel):
+    """``calls(t, t_next, dt, q, qd, p, tol, count, out)``: the model's lane event step (``lanes.event_lane``, its
+    part compiled here) ``count`` times from (q, qd) and the lanes' trial; its end and what it said in out."""
+    text = loader.binding_parts(Path(kernel.__file__).read_text(), lanes=True)["lane_event"]
+    space: dict = {}
+    exec(compile(text.replace("cache=True", "cache=False").split("COMPILED = ")[0], "lane_event part", "exec"), space)
+    event_lane, grid_step, time_terms = space["event_lane"], space["grid_step"], space["accel_time_s"]
+
+    @njit(cache=False)
+    def calls(t, t_next, dt, q, qd, p, tol, count, out):
+        sc = np.zeros(M.LANES)
+        q, qd = (q[0], q[1], q[2], q[3], q[4], q[5]), (qd[0], qd[1], qd[2], qd[3], qd[4], qd[5])
+        qn, vn, _ = grid_step(t, t_next, time_terms(t, p), q, qd, dt, p)
+        for _ in range(count):
+            what, qb, vb, logged, te, g = event_lane(t, t_next, dt, q, qd, qn, vn, p, tol, sc)
+        for d in range(6):
+            out[d] = qb[d]
+            out[6 + d] = vb[d]
+        out[12] = what
+    return calls
+
+
 def per_call_ns(fn, call, count: int, repeat: int, outs) -> float:
     """Median over ``repeat`` batches of ``fn(*call, count, *outs)`` (count calls each), ns a call."""
     times = []
@@ -166,6 +194,7 @@ def main(argv=None) -> int:
     table = kernel.table()
     dt, n_steps, slots = spec.dt, spec.n_steps, kernel.record.n_contact + MODE_SLOTS
     print(f"{args.scene}: compiling the harness ...", flush=True)
+    in_lane = lane_harness(kernel)
     rows_out, same = [], True
     for m in range(members):
         q0, qd0, p, tol = (np.ascontiguousarray(rows[key][m]) for key in ("q0", "qd0", "params", "tol"))
@@ -184,12 +213,22 @@ def main(argv=None) -> int:
                 ends.append(np.concatenate(outs))
                 row[f"{what}_{how}_ns"] = per_call_ns(fn, call, count, repeat, outs)
             same = same and bool(np.array_equal(ends[0], ends[1]))
+            if what == "impact":        # the same step in a lane (lanes.event_lane), where it takes it
+                t = step * dt
+                lane_out = np.empty(13)
+                lane_call = (t, (step + 1) * dt, dt, qs, qds, p, tol)
+                in_lane(*lane_call, 1, lane_out)
+                row["impact_in_lane"] = bool(lane_out[12] == 1)
+                if row["impact_in_lane"]:
+                    same = same and bool(np.array_equal(lane_out[:12], ends[0][:12]))
+                    row["impact_lane_ns"] = per_call_ns(in_lane, lane_call, count, repeat, (lane_out,))
         whole_run(table, q0, qd0, p, tol, dt, np.int64(1))       # (compiled at the first member)
         t0 = time.perf_counter()
         row["impulses"] = float(whole_run(table, q0, qd0, p, tol, dt, n_steps))
         row["run_ns_per_step"] = (time.perf_counter() - t0) / n_steps * 1e9
         rows_out.append(row)
-        print(f"member {m}: impact step {row['impact_call_ns']:.0f} ns, "
+        lane = f", in a lane {row['impact_lane_ns']:.0f} ns" if row["impact_in_lane"] else ", not in a lane"
+        print(f"member {m}: impact step {row['impact_call_ns']:.0f} ns{lane}, "
               f"free step {row['free_call_ns']:.0f} ns (body: {row['impact_body_ns']:.0f} / "
               f"{row['free_body_ns']:.0f} ns), whole run {row['run_ns_per_step']:.1f} ns a step", flush=True)
     if not rows_out:
@@ -198,6 +237,8 @@ def main(argv=None) -> int:
     med = {key: statistics.median(r[key] for r in rows_out)
            for key in ("impact_call_ns", "free_call_ns", "impact_body_ns", "free_body_ns", "run_ns_per_step",
                        "impulses")}
+    lane_rows = [r["impact_lane_ns"] for r in rows_out if r["impact_in_lane"]]
+    med["impact_lane_ns"] = statistics.median(lane_rows) if lane_rows else None
     result = {"scene": args.scene, "members": members, "repeat": repeat, "calls_per_batch": count,
               "quick": bool(args.quick), "command": command_line(), "machine": machine(), "rows": rows_out,
               "medians": med, "same_bits": same, "t_end": spec.t_end, "dt": dt}
@@ -215,6 +256,10 @@ def main(argv=None) -> int:
           f"| free step | {med['free_call_ns']:.0f} ns | {med['free_body_ns']:.0f} ns |",
           f"| a step of the member's whole run ({spec.t_end:g} s, one call) | {med['run_ns_per_step']:.1f} ns | - |",
           "",
+          "The impact step in a lane (`lanes.event_lane`, on floats, no trip): "
+          + (f"{med['impact_lane_ns']:.0f} ns" if lane_rows else "not taken") + f", for {len(lane_rows)} of the "
+          f"{len(rows_out)} members (the others' impact step goes alone: more than one impact in it, or a contact "
+          "coming to rest).", "",
           f"Impulses a member in {spec.t_end:g} s: {med['impulses']:.0f}; at one trip each, "
           f"{per_member:.2f} ns a member-step of the study. Each way of calling ends each step in the same bits: "
           f"{'yes' if same else 'NO'}.", ""]

@@ -59,8 +59,9 @@ FLIGHT_SOURCE = Path(__file__).with_name("engine") / "flight.py"
 LANES_SOURCE = Path(__file__).with_name("engine") / "lanes.py"
 #: the lanes of a model that has none compiled (yet): every lane "not quiet", so a block would step
 #: each member alone through the exact loop (a kernel binds the real ones before a study uses them)
-LANES_STUB = ("def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):\n"
-              "    for l in range(quiet.shape[0]):\n        quiet[l] = 0\n    return i\n")
+LANES_STUB = ("def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet, lane_event):\n"
+              "    for l in range(quiet.shape[0]):\n        quiet[l] = 0\n    return i\n\n\n"
+              "def lane_event(t, t_next, dt, S, lane, at, to, p, tol):\n    return -1\n")
 #: what a model's ride costs to compile (shaken, 2 cores): only to share the work of a first held contact
 #: out between two processes (Kernel._compile_stages)
 RIDE_COST = 6.8
@@ -280,7 +281,7 @@ def _binding_parts(model_text: str, flight_text: str, lanes_text: str, stub_text
             + ("from numba import njit as _njit\n" if names & set(_JITTED) else "")
             + "from jackbox.engine import bind_part as _bind_part\n\n"
             + "".join(f"{name} = _njit(cache=True, error_model={engine.ERROR_MODEL!r}{_JITTED[name]})({name})\n"
-                      for name in _JITTED if name in names)
+                      for name in _JITTED if name in names and name not in entries)
             + "COMPILED = {" + ", ".join(f"{entry!r}: _bind_part({entry!r}, {entry})" for entry in entries) + "}\n"
         )
     return parts
@@ -311,6 +312,11 @@ _JITTED = {**{name: "" for name in ("tuple_of", "accel_s", "accel_time_s", "box_
            # a lane near a wall (lanes.calm): phi_s and gap_rate_s inlined, so that LLVM computes the sine
            # and cosine of each angle once for both; no references counted (calm allocates nothing)
            **{name: ', inline="always"' for name in ("phi_s", "gap_rate_s")}, "calm": ", _nrt=False",
+           # a lane's event step (lanes.event_lane): each a function of its own, called only where a lane has
+           # an event (their re-step's RK4 compiled once, in restep)
+           **{name: ", _nrt=False" for name in ("event_lane", "crossing_lane", "locate_lane", "impact_lane",
+                                                 "restep", "probe", "gaps_at", "rates_at", "row_at",
+                                                 "inverse_mass")},
            # the held steps' helpers (flight.ride): inlined by Numba where a call would pass the rows through
            # memory; a pose's terms (after two sines and cosines, a call costs little) and the factorization
            # of three or four rows (a function of its own: inlined, it adds seconds of compiling) left to LLVM
@@ -385,7 +391,8 @@ def load_binding(model_file: Path, flight_text: str | None = None, lanes: bool =
         paths[name] = _write_part(paths[name], text)
     module = model_module(model_file, model_text)
     todo = {name: path for name, path in paths.items() if str(path) not in _parts and not _cached(name, path)}
-    theirs = engine.start_binding(todo) if todo else []
+    real_lanes = lanes and has_lanes(model_text)
+    theirs = engine.start_binding(todo, engine.LANES_COST if real_lanes else None) if todo else []
     parts = {}
     for name in sorted(paths, key=lambda name: name in theirs):      # the helper's last
         if name in theirs:
@@ -394,7 +401,7 @@ def load_binding(model_file: Path, flight_text: str | None = None, lanes: bool =
     compiled = {entry: fn for part in parts.values() for entry, fn in part.COMPILED.items()}
     module.COMPILED = {name: compiled[name] for name in engine.SIGNATURES}
     module.PARTS = paths
-    module.LANES = lanes and has_lanes(model_text)
+    module.LANES = real_lanes
     module.FLIGHT_TEXT = flight_text
     module.PART_CACHE = {name: part.CACHE for name, part in parts.items()}
     module.CACHE = ("disabled" if numba.config.DISABLE_JIT else

@@ -244,7 +244,8 @@ def test_a_new_model_compiles_half_of_its_functions_in_a_helper(tmp_path, monkey
     spawn = engine._spawn
     monkeypatch.setattr(engine, "_spawn", lambda args, **kw: started.append(args) or spawn(args, **kw))
     start_binding = engine.start_binding
-    monkeypatch.setattr(engine, "start_binding", lambda todo: shares.append(start_binding(todo)) or shares[-1])
+    monkeypatch.setattr(engine, "start_binding",
+                        lambda todo, *costs: shares.append(start_binding(todo, *costs)) or shares[-1])
     kernel = loader.kernel_for(scene)
     compiled = kernel.module.COMPILED
     assert list(compiled) == list(engine.SIGNATURES)

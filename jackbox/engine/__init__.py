@@ -252,7 +252,10 @@ def start(names, loops=(), lazy: bool = False, busy: float = 0.0, costs: dict | 
 #: benchmarks/compile_parts.py --scene shaken, after Numba's first compile): only to share them out
 PART_COST = {"inverse_mass": 0.1, "accel": 0.15, "phi": 0.2, "gap_rate": 0.3, "contact_rows": 0.4,
              "energy": 0.1, "box_motion": 0.03, "clearance": 0.15, "flight": 1.7,
-             "lanes": 0.05, "ride": 0.05}
+             "lane_event": 0.05, "lanes": 0.05, "ride": 0.05}
+#: the same for a model's lanes and its lane's event step where they are not the stubs: a study's first
+#: use of them compiles the two, one in each process (7.2-8.7 s and 6.1-6.8 s, one after the other)
+LANES_COST = {"lanes": 7.5, "lane_event": 6.5}
 #: what Numba's first compile in a process costs beyond the function itself (see warm_binder)
 FIRST_COMPILE = 0.6
 #: a binding part's file -> the helper process compiling it (see start_binding)
@@ -312,11 +315,12 @@ def warm_binder() -> bool:
 _warm = None
 
 
-def start_binding(todo: dict) -> list[str]:
+def start_binding(todo: dict, costs: dict | None = None) -> list[str]:
     """Hand about half of the model functions to compile to a helper process, before compiling the rest here.
 
     todo: function name -> its binding part's file, for the functions whose
-    machine code is not cached. Shared by PART_COST (:func:`share_out`); the helper of :func:`warm_binder`
+    machine code is not cached. Shared by PART_COST, or costs where given (:func:`share_out`); the helper of
+    :func:`warm_binder`
     if there is one (it has paid Numba's first compile already). Only when no
     helper is compiling engine parts (two cores, two processes). Returns the
     functions handed out; :func:`wait_binding` waits for one of them.
@@ -327,7 +331,8 @@ def start_binding(todo: dict) -> list[str]:
         return []
     process, _warm = _warm, None
     # (a warm helper has paid for its start and Numba's first compile already)
-    share = share_out({name: PART_COST.get(name, 0.5) for name in todo}, FIRST_COMPILE,
+    costs = {**PART_COST, **(costs or {})}
+    share = share_out({name: costs.get(name, 0.5) for name in todo}, FIRST_COMPILE,
                       0.0 if process is not None else HELPER_START + FIRST_COMPILE)
     paths = [str(Path(todo[name]).resolve()) for name in share]
     if share and process is not None:

@@ -224,9 +224,14 @@ def exact_on(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total
                        log, n_ev, ws)
 
 
-def lanes_none(t0, dt, i, i_stop, S, p, tol, live, quiet):
+def lanes_none(t0, dt, i, i_stop, S, p, tol, live, quiet, lane_event):
     """(a kernel's model has no lanes: a GPU's member is a thread)"""
     return i
+
+
+def lane_event_none(t, t_next, dt, S, lane, at, to, p, tol):
+    """(nor a lane's event step)"""
+    return -1
 
 
 def ride_none(t0, dt, i, i_stop, q, qd, p, tol, rest, m, k1, k2, winv, io_f, rec_t, rec_q, rec_qd, io_k,
@@ -417,6 +422,7 @@ from jackbox.engine.records import Events as _Events, Model as _Model, Samples a
 
 _gpu.to_device(globals())
 _exact = _gpu.device(_gpu.exact_on)
+_lane_event = _gpu.device(_gpu.lane_event_none)
 _lanes = _gpu.device(_gpu.lanes_none)
 _ride = _gpu.device(_gpu.ride_none)
 _step, _update, _crossing, _release, _fallback, _hold = _gpu.stage_devices()
@@ -428,7 +434,7 @@ _HAS_CALM = {HAS_CALM}
 @_cuda.jit(device=True, inline="always")
 def _model():
     return _Model({N_DOF}, {N_CONTACT}, {N_WALL}, {E_SLOT}, {E_GROUND_SLOT}, {PRESCRIBED}, {HAS_GROUND},
-                  {FUNCTIONS}, _lanes, _ride)
+                  {FUNCTIONS}, _lane_event, _lanes, _ride)
 
 
 @_cuda.jit(device=True, inline="always")
@@ -645,7 +651,7 @@ def calm_text(model_text: str) -> str:
 def kernel_text(model_text: str, flight_text: str, constants: dict) -> str:
     """The text of a model's kernel file (see :data:`KERNELS`): the model's text (with the loader's stubs for
     what it lacks), the hot path's, the lanes' calm test, the kernels."""
-    functions = ", ".join(name for name in SIGNATURES if name not in ("lanes", "ride"))
+    functions = ", ".join(name for name in SIGNATURES if name not in ("lane_event", "lanes", "ride"))
     filled = KERNELS
     for key, value in {**constants, "FUNCTIONS": functions, "SC": SC, "SN": SN, "SK": SK, "MODE_SLOTS": MODE_SLOTS,
                        "ROW": constants["N_DOF"] + ROW_EXTRA,

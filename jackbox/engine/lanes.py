@@ -36,11 +36,15 @@ import math
 
 from numba import uint64 as _u8
 
+from jackbox.engine.events import cubic_root as _cubic_root
 from jackbox.engine.gaps import (cubic_error as _cubic_error, hermite as _hermite, hermite_extrema as _hermite_extrema,
                                  speed_bound as _speed_bound, step_reach as _step_reach)
 from jackbox.engine.integrator import NODES as _NODES
-from jackbox.engine.records import (BOUND_ROW as _BOUND, LANES as _W, SCRATCH_ROW as _SCRATCH, SPEED_ROW as _SPEED,
-                                    T_EVENT as _T_EVENT_L, T_GAP as _T_GAP_L, T_VREST as _T_VREST_L)
+from jackbox.engine.records import (BOUND_ROW as _BOUND, FIRST_ROW as _FIRST, GAP_ROUNDOFF as _GAP_ROUNDOFF,
+                                    IMPULSE_ROW as _IMPULSES, LANES as _W, SCRATCH_ROW as _SCRATCH,
+                                    SPEED_ROW as _SPEED, T_AREST as _T_AREST_L, T_EVENT as _T_EVENT_L,
+                                    T_GAP as _T_GAP_L, T_VREST as _T_VREST_L)
+from jackbox.engine.tolerances import FLIGHT_TOL as _FLIGHT_TOL
 
 # sin and cos: Cody-Waite reduction by pi/2 (its first part has 33 bits, so k * _PIO2_HI is exact for
 # |k| < 2^20, angles up to 1.6e6 rad) and the classical minimax polynomials on [-pi/4, pi/4]
@@ -151,7 +155,306 @@ def calm(t, t_next, q, qd, qn, vn, p, tol, ext):
     return True, smallest
 
 
-def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):
+# ---------------------------------------------------------------------------
+# A lane's event step: the exact loop's impact step of a free member, on floats (see event_lane)
+
+#: what a lane's event step says: taken (its end and impulses in S), no event after all (the trial
+#: stands), or a case it leaves to the exact loop (the member goes alone, as before)
+TAKEN, NO_EVENT, ALONE_CASE = 1, 0, -1
+_EPS = 2.220446049250313e-16
+
+
+def restep(ta, q, qd, s, p):
+    """The exact loop's re-step from (ta, q, qd) to time s (``integrator.rk4`` with nothing held: the model's
+    ``free_step`` from ta to ``ta + (s - ta)``), on tuples; returns ``(q, qd)`` at s."""
+    h = s - ta
+    qs, vs, _ = grid_step(ta, ta + h, accel_time_s(ta, p), q, qd, h, p)
+    return qs, vs
+
+
+def probe(ta, q, qd, s, p):
+    """:func:`restep` to s and the gaps there (``events.event_value`` of a free lane): ``(q, qd, gaps)``."""
+    qs, vs = restep(ta, q, qd, s, p)
+    return qs, vs, gaps_at(s, qs, p)
+
+
+def gaps_at(t, q, p):
+    """The model's ``phi_s`` (a function of its own: inlined at each of the event step's calls, it took seconds
+    of compiling)."""
+    return phi_s(t, q, p)
+
+
+def rates_at(t, q, qd, p):
+    """The model's ``gap_rate_s`` (see :func:`gaps_at`)."""
+    return gap_rate_s(t, q, qd, p)
+
+
+def row_at(t, q, qd, p, pose, k):
+    """The model's ``contact_row_s`` (see :func:`gaps_at`)."""
+    return contact_row_s(t, q, qd, p, pose, k)
+
+
+def locate_lane(k, ta, q, qd, tl, fl, tr, fr, guess, half, p, tol):
+    """``events.locate`` for gap k of a free lane (its event function: the gap plus ``half`` at a re-step's end),
+    the same operations in their order. Returns ``(converged, tl, tr, last, q, qd, gaps)``: the last probe's
+    time (-1: none) and its state and gaps."""
+    side = 0
+    last = -1.0
+    ttol = 4.0 * _EPS * max(abs(tr), tr - ta)
+    ftol = _GAP_ROUNDOFF * tol[_T_EVENT_L]
+    t_start = tl
+    done = False
+    qs, vs, gs = q, qd, gaps_at(ta, q, p)
+    for it in range(200):
+        if tr - tl <= ttol or (tl > t_start and fl <= ftol):
+            done = True
+            break
+        if it == 0 and tl < guess < tr:
+            s = guess
+        else:
+            s = (tl * fr - tr * fl) / (fr - fl)
+            if not (tl <= s <= tr):
+                s = 0.5 * (tl + tr)
+        s = min(max(s, tl + 0.5 * ttol), tr - 0.5 * ttol)
+        qs, vs, gs = probe(ta, q, qd, s, p)
+        f = gs[k] + half
+        last = s
+        if f >= 0.0:
+            tl, fl = s, f
+            if side == -1:
+                fr *= 0.5
+            side = -1
+        else:
+            tr, fr = s, f
+            if side == 1:
+                fl *= 0.5
+            side = 1
+    return done or not tr - tl > ttol, tl, tr, last, qs, vs, gs
+
+
+def crossing_lane(ta, tb, q, qd, qb, vb, ga, gb, p, tol, ext):
+    """``events.first_crossing`` for a free lane (no contact held), the same operations in their order.
+
+    (q, qd) at ta, the step's trial (qb, vb) at tb, their gaps ga, gb.
+    Returns ``(what, te, q, qd)``: NO_EVENT; TAKEN with the state just
+    before the first crossing and its time te; or ALONE_CASE where the exact
+    loop would do what this does not: a contact starting the step deep
+    (its own level), a touch at the step's start, a location that did not
+    converge, or a second gap already past its level at the first crossing.
+    """
+    h = tb - ta
+    half = 0.5 * tol[_T_EVENT_L]
+    deep = half + tol[_T_EVENT_L]
+    band = _step_reach(qd, vb, h, tol)
+    near = False
+    for k in range(N_CONTACT):
+        if min(ga[k], gb[k]) + deep < band:
+            near = True
+    if not near:
+        return NO_EVENT, -1.0, q, qd
+    va = rates_at(ta, q, qd, p)
+    vr = rates_at(tb, qb, vb, p)
+    tiny = 1e-3 * tol[_T_VREST_L]
+    for k in range(N_CONTACT):
+        if ga[k] + half < 0.0 and va[k] >= -tiny:
+            return ALONE_CASE, -1.0, q, qd
+    dip = _cubic_error(qd, vb, h, tol)
+    at = -1.0                       # the time of the last re-step, its state and gaps
+    qa, vat, gat = q, qd, ga
+    best_l = -1.0
+    best_k = -1
+    t_hi = tb
+    for k in range(N_CONTACT):
+        da, db = h * va[k], h * vr[k]
+        fa, fb = ga[k] + half, gb[k] + half
+        if min(fa, fb) >= band:
+            continue
+        nx = _hermite_extrema(fa, fb, da, db, ext)
+        sr = -1.0
+        fr = 0.0
+        if fb < 0.0:
+            sr, fr = 1.0, fb
+        for j in range(nx):
+            hv = _hermite(fa, fb, da, db, ext[j])
+            if (hv < 0.0 or hv < dip < min(fa, fb) - hv) and (sr < 0.0 or ext[j] < sr):
+                sr = ext[j]
+                at = ta + sr * h
+                qa, vat, gat = probe(ta, q, qd, at, p)
+                fr = gat[k] + half
+                if fr >= 0.0:
+                    sr = 1.0 if fb < 0.0 else -1.0
+                    fr = fb
+                break
+        if sr < 0.0:
+            continue
+        tr = ta + sr * h
+        if best_k >= 0 and tr > t_hi:
+            continue
+        tl, fl = ta, fa             # events.left_bracket
+        if da > 0.0:
+            nx = _hermite_extrema(fa, fb, da, db, ext)
+            for j in range(nx):
+                if ext[j] < sr and _hermite(fa, fb, da, db, ext[j]) > fa:
+                    at = ta + ext[j] * h
+                    qa, vat, gat = probe(ta, q, qd, at, p)
+                    f = gat[k] + half
+                    if f > fl:
+                        tl, fl = at, f
+                    break
+        if fl <= 0.0:
+            return ALONE_CASE, -1.0, q, qd
+        guess = ta + h * _cubic_root(fa, fb, da, db, (tl - ta) / h, sr)
+        ok, tl, tr, last, qs, vs, gs = locate_lane(k, ta, q, qd, tl, fl, tr, fr, guess, half, p, tol)
+        if not ok:
+            return ALONE_CASE, -1.0, q, qd
+        if last >= 0.0:
+            at, qa, vat, gat = last, qs, vs, gs
+        if best_k < 0 or tl < best_l:
+            best_l, best_k = tl, k
+            t_hi = tr
+    if best_k < 0:
+        return NO_EVENT, -1.0, q, qd
+    if at != best_l:
+        qa, vat, gat = probe(ta, q, qd, best_l, p)
+    for k in range(N_CONTACT):
+        if gat[k] + half < 0.0:
+            return ALONE_CASE, -1.0, q, qd
+    return TAKEN, best_l, qa, vat
+
+
+def impact_lane(t, q, qd, p, tol, w, vrest):
+    """``modes.update_contacts`` at an event of a free lane where one contact approaches and none comes to rest.
+
+    The same operations in their order: the contacts within reach, their
+    rows, rest speeds (into the array vrest) and Newton's law on the one that
+    approaches (its LCP of one row, as ``impact.lcp`` solves it); w:
+    diag M^-1. Returns ``(taken, qd after, impulses logged)``; not taken
+    where the exact update would do more: no contact or several that take
+    part, a slow approach (the exact loop counts those), a contact left
+    still (the accelerations' LCP), or an LCP the enumeration does not solve.
+    """
+    g = gaps_at(t, q, p)
+    v = rates_at(t, q, qd, p)
+    dt_res = 8.0 * _EPS * max(abs(t), 1.0)
+    pose = contact_pose_s(t, q, p)
+    a = accel_s(t, q, qd, p, accel_time_s(t, p))
+    half = 0.5 * tol[_T_EVENT_L]
+    tiny = 1e-3 * tol[_T_VREST_L]
+    flight = _FLIGHT_TOL * math.sqrt(tol[_T_EVENT_L] / tol[_T_AREST_L])
+    near = 0
+    hits = 0
+    kh = -1
+    rh = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    for k in range(N_CONTACT):
+        if not g[k] < tol[_T_GAP_L] + abs(v[k]) * dt_res:         # (modes.within_reach)
+            continue
+        near += 1
+        r = row_at(t, q, qd, p, pose, k)
+        s = row_dot_s(r, a)
+        rise = max(-half - g[k], 0.0) + tol[_T_EVENT_L]
+        press = max(-s, 0.0)
+        vrest[k] = max(tol[_T_VREST_L], math.sqrt(2.0 * rise * press), 0.5 * flight * press)
+        vk = r[8]
+        if vk <= tiny:
+            hits += 1
+            kh, rh = k, r
+            if not vk < -tiny:          # (closed and still: the accelerations' LCP)
+                return False, qd, 0
+    if near == 0 or hits != 1:
+        return False, qd, 0
+    vk = rh[8]
+    e = p[E_SLOT] if kh < N_WALL_CONTACT else p[E_GROUND_SLOT]
+    b = vk + (e * vk if vk < -vrest[kh] else 0.0)
+    if not b < 0.0:                 # (impact.lcp: nothing approaches, no impulse)
+        return False, qd, 0
+    A = wdot_s(rh, w, rh)
+    # impact.lcp on one row: the set {kh} by solve_dense, kept if its impulse passes the tolerance
+    if not abs(A) > 1e-12 * abs(A):
+        return False, qd, 0
+    x = -b / A
+    if x < -(1e-10 * max(0.0, abs(b))) / max(A, 1e-300):
+        return False, qd, 0
+    lam = max(x, 0.0)
+    qd = respond_s(qd, w, rh, lam)
+    logged = 1 if lam * A > tiny else 0
+    for k in range(N_CONTACT):      # the rows again at the new rates: none comes to rest
+        if not g[k] < tol[_T_GAP_L] + abs(v[k]) * dt_res:
+            continue
+        if abs(row_at(t, q, qd, p, pose, k)[8]) < vrest[k]:
+            return False, qd, 0
+    return True, qd, logged
+
+
+def event_lane(t, t_next, dt, q, qd, qn, vn, p, tol, sc):
+    """The exact loop's step of a free member from (t, q, qd), its trial (qn, vn) at t_next, where it has an
+    event: ``loop.exact_steps``' quiet test, then ``loop.advance``'s passes (a crossing, the update, the
+    re-step to t_next, no second crossing), on floats, the same numbers. Returns ``(what, q, qd at t_next,
+    impulses logged, the impact's time, smallest gap at t_next)`` (what: :data:`TAKEN` or
+    :data:`NO_EVENT`, or :data:`ALONE_CASE` for a step that only the exact loop takes). sc: a row of
+    scratch (a cubic's stationary points, M^-1's diagonal, the rest speeds).
+    """
+    if not finite(qn, vn):
+        return ALONE_CASE, qn, vn, 0, t, 0.0
+    ext = sc[0:2]
+    ga = gaps_at(t, q, p)
+    gb = gaps_at(t_next, qn, p)
+    low = gb[0]
+    for k in range(N_CONTACT):
+        low = min(low, gb[k])
+    band = _step_reach(qd, vn, dt, tol) - 0.5 * tol[_T_EVENT_L]
+    quiet = True
+    for k in range(N_CONTACT):
+        if min(ga[k], gb[k]) < band:
+            quiet = False
+    if quiet:
+        return NO_EVENT, qn, vn, 0, t, low
+    what, te, qs, vs = crossing_lane(t, t_next, q, qd, qn, vn, ga, gb, p, tol, ext)
+    if what != TAKEN:
+        return what, qn, vn, 0, t, low
+    if not te > t:
+        return ALONE_CASE, qn, vn, 0, t, low
+    inverse_mass(p, sc[2:2 + N_DOF])
+    taken, vs, logged = impact_lane(te, qs, vs, p, tol, tuple_of(sc[2:2 + N_DOF]), sc[2 + N_DOF:])
+    if not taken:
+        return ALONE_CASE, qn, vn, 0, t, low
+    qb, vb = restep(te, qs, vs, t_next, p)
+    gb = gaps_at(t_next, qb, p)
+    what, _, _, _ = crossing_lane(te, t_next, qs, vs, qb, vb, gaps_at(te, qs, p), gb, p, tol, ext)
+    if what != NO_EVENT:
+        return ALONE_CASE, qn, vn, 0, t, low
+    low = gb[0]
+    for k in range(N_CONTACT):
+        low = min(low, gb[k])
+    return TAKEN, qb, vb, logged, te, low
+
+
+
+def lane_event(t, t_next, dt, S, lane, at, to, p, tol):
+    """A lane's event step (the model's ``lane_event``, passed to :func:`lanes`): :func:`event_lane` for lane
+    ``lane`` of the block state S, from its state in the rows from ``at`` to its trial in those from ``to``.
+
+    Where taken, the step's end goes into the trial's rows, the smallest gap
+    there into the scratch row's first slot, and an impulse into the lane's
+    count (IMPULSE_ROW, FIRST_ROW). Returns what :func:`event_lane` says.
+    Its own binding part, so the lanes' part links none of it: compiled
+    into theirs it cost them 7 s more to compile (14.7 s against 7.5).
+    """
+    QV = 6 * _W
+    sc = S[_SCRATCH * _W:(_SCRATCH + 1) * _W]
+    what, qb, vb, logged, te, g = event_lane(t, t_next, dt, lane_state(S, at, lane), lane_state(S, at + QV, lane),
+                                             lane_state(S, to, lane), lane_state(S, to + QV, lane), p, tol, sc)
+    if what != ALONE_CASE:
+        put_lane_state(S, to, lane, qb)
+        put_lane_state(S, to + QV, lane, vb)
+        sc[0] = g
+        if logged:
+            if S[_IMPULSES * _W + lane] == 0.0:
+                S[_FIRST * _W + lane] = te
+            S[_IMPULSES * _W + lane] += 1.0
+    return what
+
+
+def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet, event):
     """Steps i, i+1, ... of the block's live lanes together while each step is quiet for every live lane.
 
     S: the block's state (rows q, qd, trial q, trial qd, then per lane a bound
@@ -163,6 +466,12 @@ def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):
     lane and quiet[lane] says whether that lane may take it. A lane that is
     not live is stepped too (its numbers are not used). Free boxes only: six
     coordinates, box first.
+
+    A live lane near a wall takes the step if the exact loop would find no
+    event in it (:func:`calm`), or if ``event`` (the model's
+    :func:`lane_event`, a function value) takes the exact loop's step with
+    its one impact on floats; the lanes stop only before a step that needs
+    more (a contact coming to rest, several at once, a second impact in it).
 
     The state and the trial trade rows from one step to the next instead of
     the trial being copied over the state (that copy was a quarter of the
@@ -183,14 +492,14 @@ def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):
             S[SA + lane] = _speed_bound(lane_state(S, QV, lane), tl)
     tt = accel_time_s(t, p)
     while i < i_stop:
-        stop, tt = step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, 0, QB, GA, GB, SA, SB)
+        stop, tt = step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, 0, QB, GA, GB, SA, SB, event)
         if stop:
             return i
         i += 1
         if i == i_stop:
             trade(S, n)     # the state is in the trial's rows
             return i
-        stop, tt = step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, QB, 0, GB, GA, SB, SA)
+        stop, tt = step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, QB, 0, GB, GA, SB, SA, event)
         if stop:
             trade(S, n)     # the state is in the trial's rows and the trial in the state's
             return i
@@ -198,7 +507,7 @@ def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet):
     return i
 
 
-def step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, A, B, GA, GB, SA, SB):
+def step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, A, B, GA, GB, SA, SB, event):
     """Step i of every lane from the state in rows A.. to its trial in rows B.. (bounds: GA, SA to GB, SB).
 
     Returns (how many live lanes are not calm: 0 if the step is taken, the
@@ -241,16 +550,22 @@ def step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, A, B, GA, GB, SA, 
         stop += live[lane] & (1 - ok)
     if stop:       # a live lane near a wall: the exact loop's own test for an event in the step
         stop = 0
-        ext = S[_SCRATCH * _W:_SCRATCH * _W + 2]
+        sc = S[_SCRATCH * _W:(_SCRATCH + 1) * _W]
         for lane in range(n):
             if live[lane] and not quiet[lane]:
                 ok, g = calm(t, t_next, lane_state(S, A, lane), lane_state(S, A + QV, lane), lane_state(S, B, lane),
-                             lane_state(S, B + QV, lane), p, tol, ext)
+                             lane_state(S, B + QV, lane), p, tol, sc)
                 if ok:
                     quiet[lane] = 1
                     S[_u8(GB + lane)] = g
-                else:
+                    continue
+                # an event in the step: the exact loop's impact step, on floats, where it is a plain one
+                if event(t, t_next, dt, S, lane, A, B, p, tol) == ALONE_CASE:
                     stop += 1
+                    continue
+                quiet[lane] = 1
+                S[_u8(GB + lane)] = sc[0]
+                S[_u8(SB + lane)] = _speed_bound(lane_state(S, B + QV, lane), tl)
     return stop, tt_next
 
 

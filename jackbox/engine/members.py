@@ -25,7 +25,7 @@ from .draws import START, TWIN, draw_normal, draw_uniform
 from .gaps import speed_bound
 from .modes import time_resolution, within_reach
 from .records import (DERIVE_CROSS, DONE, EXACT_AT, FALLBACK, IMPACT_LOG_FULL, IMPULSE, LANES, MODE_AT, MODE_SLOTS, MODEL_AT,
-                      STAGES_AT, T_BOXV, T_GAP, WARNING, BLOCK_ROWS, BOUND_ROW, SPEED_ROW, Events, ExactType, ModelType, Samples,
+                      STAGES_AT, T_BOXV, T_GAP, WARNING, BLOCK_ROWS, BOUND_ROW, FIRST_ROW, IMPULSE_ROW, SPEED_ROW, Events, ExactType, ModelType, Samples,
                       StagesType, from_table, TWIN_FIN)
 from .tolerances import set_tolerances
 
@@ -454,6 +454,20 @@ def put_lane(S, lane, q, qd):
     S[BOUND_ROW * W + lane] = np.nan
 
 
+@njit(cache=True, no_cpython_wrapper=True, _nrt=False)
+def fold_impulses(S, lane, tally):
+    """The impulses lane ``lane`` took in the lanes (:func:`~.lanes.event_lane`) into its tally, as
+    :func:`run_segment` counts those of a stretch alone: their count, and the first one's time where the tally
+    had none. (Before any stretch alone, and before a block's caller reads the tallies.)"""
+    W = LANES
+    c = S[IMPULSE_ROW * W + lane]
+    if c > 0.0:
+        if tally[TALLY_IMPULSES] == 0.0:
+            tally[TALLY_FIRST] = S[FIRST_ROW * W + lane]
+        tally[TALLY_IMPULSES] += c
+        S[IMPULSE_ROW * W + lane] = 0.0
+
+
 @njit(cache=True, no_cpython_wrapper=True)
 def new_block(model):
     """A block's state (rows of LANES floats, see :mod:`.lanes`) and the per-lane arrays that go with it."""
@@ -584,7 +598,7 @@ def block_to(model, exact, stages, B, p, tol, dt, i, stop, out, log):
             if n_live == 0:
                 j = j_stop
                 continue
-            j = model.lanes(0.0, dt, j, j_stop, S, p, tol, live, quiet)
+            j = model.lanes(0.0, dt, j, j_stop, S, p, tol, live, quiet, model.lane_event)
             if j == j_stop:
                 continue
             n_todo = take_trials(S, live, quiet, todo)
@@ -599,6 +613,8 @@ def block_to(model, exact, stages, B, p, tol, dt, i, stop, out, log):
             if back[lane] >= 0:
                 put_lane(S, lane, B.held_q[lane], B.held_qd[lane])
         i = end
+    for lane in range(W):
+        fold_impulses(S, lane, B.tallies[lane])
     return log
 
 
@@ -673,6 +689,7 @@ def run_block(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, 
 @njit(cache=True, no_cpython_wrapper=True, _nrt=True)     # (returns an array: see NO_REFERENCES)
 def alone_to(model, exact, stages, B, lane, p, tol, dt, i, end, out, log):
     """Member ``lane`` of block B alone through the exact loop from step i to end (its state in B.held_q, B.held_qd)."""
+    fold_impulses(B.S, lane, B.tallies[lane])
     k, _, st, log = run_segment(model, exact, stages, B.held_q[lane], B.held_qd[lane], B.rests[lane], p, tol, dt, i,
                                 end, out, np.int64(1), log, B.tallies[lane])
     if st != DONE:

@@ -137,6 +137,7 @@ I1 = types.Array(I8, 1, "C")
 I2 = types.Array(I8, 2, "C")            #: a table (see from_table)
 
 #: the signature of each function a model brings (the generated ones, then the hot path)
+LANE_EVENT = I8(F8, F8, F8, V1, I8, I8, I8, V1, V1)
 SIGNATURES = {
     "inverse_mass": types.void(V1, V1),                       # (p, out)
     "accel": types.void(F8, V1, V1, V1, V1),                  # (t, q, qd, p, out)
@@ -153,8 +154,11 @@ SIGNATURES = {
     # (t0, dt, i, i_stop, q, qd, p, tol, clear, q_out, qd_out, rec_t, rec_q, rec_qd, n_rec, next_rec,
     # record_every, n_total) -> (i, clear, n_rec)
     "fly": types.Tuple((I8, F8, I8))(F8, F8, I8, I8, V1, V1, V1, V1, F8, V1, V1, V1, V2, V2, I8, I8, I8, I8),
-    # an ensemble block's lanes (jackbox/engine/lanes.py, compiled with the model when a study needs it)
-    "lanes": I8(F8, F8, I8, I8, V1, V1, V1, I1, I1),             # (t0, dt, i, i_stop, S, p, tol, live, quiet)
+    # an ensemble block's lanes (jackbox/engine/lanes.py, compiled with the model when a study needs it): a
+    # lane's event step (t, t_next, dt, S, lane, at, to, p, tol) -> what, its own part (compiled beside the
+    # lanes, in parallel) and passed to them; the lanes (t0, dt, i, i_stop, S, p, tol, live, quiet, lane_event)
+    "lane_event": LANE_EVENT,
+    "lanes": I8(F8, F8, I8, I8, V1, V1, V1, I1, I1, types.FunctionType(LANE_EVENT)),
     # held steps on one or two contacts (jackbox/engine/flight.py): (t0, dt, i, i_stop, q, qd, p, tol, rest, m,
     # k1, k2, winv, io_f, rec_t, rec_q, rec_qd, io_k, record_every, n_total, qb, qdb, ga, gb, ls, A) -> i; in and
     # out through io_f (the bound on the free gaps) and io_k (the samples written, a step handed over). (A tuple
@@ -169,15 +173,20 @@ SIGNATURES = {
 LANES = 32
 #: rows of a block's state (each LANES floats, free boxes: six coordinates): q, qd, the trial q and qd
 #: of the step the lanes stopped before, then the bound on every gap at the start and at the trial's end,
-#: the trial step's band, the bound on the gaps' speed at the start and at the trial's end, and scratch
-BLOCK_ROWS = 4 * 6 + 6
+#: the trial step's band, the bound on the gaps' speed at the start and at the trial's end, scratch, and
+#: the impulses each lane took in the lanes (a count, the first one's time) not yet in its tally
+BLOCK_ROWS = 4 * 6 + 8
 #: the row of each lane's bound on its gaps (NaN: to be computed again), the next that at the trial's end
 BOUND_ROW = 24
 #: the row of each lane's bound on its gaps' speed (with the bound, computed again where that is NaN), the
 #: next that at the trial's end
 SPEED_ROW = 27
-#: a row of scratch for the lanes (a cubic's stationary points)
+#: a row of scratch for the lanes (a cubic's stationary points; in a lane's event step the diagonal of
+#: M^-1 and each contact's rest speed as well: LANES must be at least 8 + the contacts)
 SCRATCH_ROW = 29
+#: the rows of the impulses a lane took in the lanes since they were last added to its tally: how many,
+#: and the time of the first (jackbox.engine.members.fold_impulses)
+IMPULSE_ROW, FIRST_ROW = 30, 31
 
 #: integer fields of the model record, then its functions
 SIZES = ("n_dof", "n_contact", "n_wall", "e_slot", "e_ground_slot", "prescribed", "has_ground")
