@@ -261,8 +261,10 @@ def main(argv=None) -> int:
           f"{len(rows_out)} members (the others' impact step goes alone: more than one impact in it, or a contact "
           "coming to rest).", "",
           f"Impulses a member in {spec.t_end:g} s: {med['impulses']:.0f}; at one trip each, "
-          f"{per_member:.2f} ns a member-step of the study. Each way of calling ends each step in the same bits: "
-          f"{'yes' if same else 'NO'}.", ""]
+          f"{per_member:.2f} ns a member-step of the study"
+          + (f", at one step in a lane each {per_member * med['impact_lane_ns'] / med['impact_call_ns']:.2f} ns"
+             if lane_rows else "")
+          + f". Each way of calling ends each step in the same bits: {'yes' if same else 'NO'}.", ""]
     if args.quick:
         md.insert(2, "Quick sizes: these runs are too short for the figures to mean anything.\n")
     (args.out / "trip.md").write_text("\n".join(md))

@@ -164,17 +164,18 @@ TAKEN, NO_EVENT, ALONE_CASE = 1, 0, -1
 _EPS = 2.220446049250313e-16
 
 
-def restep(ta, q, qd, s, p):
+def restep(ta, tta, q, qd, s, p):
     """The exact loop's re-step from (ta, q, qd) to time s (``integrator.rk4`` with nothing held: the model's
-    ``free_step`` from ta to ``ta + (s - ta)``), on tuples; returns ``(q, qd)`` at s."""
+    ``free_step`` from ta to ``ta + (s - ta)``), on tuples; tta: the time terms at ta (``accel_time_s``, read
+    once for every re-step from ta). Returns ``(q, qd)`` at s."""
     h = s - ta
-    qs, vs, _ = grid_step(ta, ta + h, accel_time_s(ta, p), q, qd, h, p)
+    qs, vs, _ = grid_step(ta, ta + h, tta, q, qd, h, p)
     return qs, vs
 
 
-def probe(ta, q, qd, s, p):
+def probe(ta, tta, q, qd, s, p):
     """:func:`restep` to s and the gaps there (``events.event_value`` of a free lane): ``(q, qd, gaps)``."""
-    qs, vs = restep(ta, q, qd, s, p)
+    qs, vs = restep(ta, tta, q, qd, s, p)
     return qs, vs, gaps_at(s, qs, p)
 
 
@@ -189,22 +190,28 @@ def rates_at(t, q, qd, p):
     return gap_rate_s(t, q, qd, p)
 
 
+def gaps_rates_at(t, q, qd, p):
+    """The model's ``phi_s`` and ``gap_rate_s`` together: LLVM reads the sine and cosine of each angle once for
+    both (:func:`calm` does the same). A lane's event step spent a third of its time in the library's sines."""
+    return phi_s(t, q, p), gap_rate_s(t, q, qd, p)
+
+
 def row_at(t, q, qd, p, pose, k):
     """The model's ``contact_row_s`` (see :func:`gaps_at`)."""
     return contact_row_s(t, q, qd, p, pose, k)
 
 
-def locate_lane(k, ta, q, qd, tl, fl, tr, fr, guess, half, p, tol):
+def locate_lane(k, ta, tta, q, qd, g0, tl, fl, tr, fr, guess, half, p, tol):
     """``events.locate`` for gap k of a free lane (its event function: the gap plus ``half`` at a re-step's end),
     the same operations in their order. Returns ``(converged, tl, tr, last, q, qd, gaps)``: the last probe's
-    time (-1: none) and its state and gaps."""
+    time (-1: none) and its state and gaps (where none, q, qd and g0)."""
     side = 0
     last = -1.0
     ttol = 4.0 * _EPS * max(abs(tr), tr - ta)
     ftol = _GAP_ROUNDOFF * tol[_T_EVENT_L]
     t_start = tl
     done = False
-    qs, vs, gs = q, qd, gaps_at(ta, q, p)
+    qs, vs, gs = q, qd, g0
     for it in range(200):
         if tr - tl <= ttol or (tl > t_start and fl <= ftol):
             done = True
@@ -216,7 +223,7 @@ def locate_lane(k, ta, q, qd, tl, fl, tr, fr, guess, half, p, tol):
             if not (tl <= s <= tr):
                 s = 0.5 * (tl + tr)
         s = min(max(s, tl + 0.5 * ttol), tr - 0.5 * ttol)
-        qs, vs, gs = probe(ta, q, qd, s, p)
+        qs, vs, gs = probe(ta, tta, q, qd, s, p)
         f = gs[k] + half
         last = s
         if f >= 0.0:
@@ -232,10 +239,11 @@ def locate_lane(k, ta, q, qd, tl, fl, tr, fr, guess, half, p, tol):
     return done or not tr - tl > ttol, tl, tr, last, qs, vs, gs
 
 
-def crossing_lane(ta, tb, q, qd, qb, vb, ga, gb, p, tol, ext):
+def crossing_lane(ta, tb, q, qd, qb, vb, ga, gb, va, vr, p, tol, ext):
     """``events.first_crossing`` for a free lane (no contact held), the same operations in their order.
 
-    (q, qd) at ta, the step's trial (qb, vb) at tb, their gaps ga, gb.
+    (q, qd) at ta, the step's trial (qb, vb) at tb, their gaps ga, gb and
+    gap rates va, vr.
     Returns ``(what, te, q, qd)``: NO_EVENT; TAKEN with the state just
     before the first crossing and its time te; or ALONE_CASE where the exact
     loop would do what this does not: a contact starting the step deep
@@ -252,13 +260,12 @@ def crossing_lane(ta, tb, q, qd, qb, vb, ga, gb, p, tol, ext):
             near = True
     if not near:
         return NO_EVENT, -1.0, q, qd
-    va = rates_at(ta, q, qd, p)
-    vr = rates_at(tb, qb, vb, p)
     tiny = 1e-3 * tol[_T_VREST_L]
     for k in range(N_CONTACT):
         if ga[k] + half < 0.0 and va[k] >= -tiny:
             return ALONE_CASE, -1.0, q, qd
     dip = _cubic_error(qd, vb, h, tol)
+    tta = accel_time_s(ta, p)
     at = -1.0                       # the time of the last re-step, its state and gaps
     qa, vat, gat = q, qd, ga
     best_l = -1.0
@@ -279,7 +286,7 @@ def crossing_lane(ta, tb, q, qd, qb, vb, ga, gb, p, tol, ext):
             if (hv < 0.0 or hv < dip < min(fa, fb) - hv) and (sr < 0.0 or ext[j] < sr):
                 sr = ext[j]
                 at = ta + sr * h
-                qa, vat, gat = probe(ta, q, qd, at, p)
+                qa, vat, gat = probe(ta, tta, q, qd, at, p)
                 fr = gat[k] + half
                 if fr >= 0.0:
                     sr = 1.0 if fb < 0.0 else -1.0
@@ -296,7 +303,7 @@ def crossing_lane(ta, tb, q, qd, qb, vb, ga, gb, p, tol, ext):
             for j in range(nx):
                 if ext[j] < sr and _hermite(fa, fb, da, db, ext[j]) > fa:
                     at = ta + ext[j] * h
-                    qa, vat, gat = probe(ta, q, qd, at, p)
+                    qa, vat, gat = probe(ta, tta, q, qd, at, p)
                     f = gat[k] + half
                     if f > fl:
                         tl, fl = at, f
@@ -304,7 +311,8 @@ def crossing_lane(ta, tb, q, qd, qb, vb, ga, gb, p, tol, ext):
         if fl <= 0.0:
             return ALONE_CASE, -1.0, q, qd
         guess = ta + h * _cubic_root(fa, fb, da, db, (tl - ta) / h, sr)
-        ok, tl, tr, last, qs, vs, gs = locate_lane(k, ta, q, qd, tl, fl, tr, fr, guess, half, p, tol)
+        ok, tl, tr, last, qs, vs, gs = locate_lane(k, ta, tta, q, qd, ga, tl, fl, tr, fr, guess, half, p,
+                                                   tol)
         if not ok:
             return ALONE_CASE, -1.0, q, qd
         if last >= 0.0:
@@ -315,7 +323,7 @@ def crossing_lane(ta, tb, q, qd, qb, vb, ga, gb, p, tol, ext):
     if best_k < 0:
         return NO_EVENT, -1.0, q, qd
     if at != best_l:
-        qa, vat, gat = probe(ta, q, qd, best_l, p)
+        qa, vat, gat = probe(ta, tta, q, qd, best_l, p)
     for k in range(N_CONTACT):
         if gat[k] + half < 0.0:
             return ALONE_CASE, -1.0, q, qd
@@ -328,13 +336,14 @@ def impact_lane(t, q, qd, p, tol, w, vrest):
     The same operations in their order: the contacts within reach, their
     rows, rest speeds (into the array vrest) and Newton's law on the one that
     approaches (its LCP of one row, as ``impact.lcp`` solves it); w:
-    diag M^-1. Returns ``(taken, qd after, impulses logged)``; not taken
-    where the exact update would do more: no contact or several that take
-    part, a slow approach (the exact loop counts those), a contact left
-    still (the accelerations' LCP), or an LCP the enumeration does not solve.
+    diag M^-1. Returns ``(taken, qd after, impulses logged, the gaps at (t,
+    q))``; not taken where the exact update would do more: no contact or
+    several that take part, one closed and still, a contact left still after
+    the impulse (the accelerations' LCP), or an LCP the enumeration does not
+    solve. (A slow approach the exact loop counts for its runs of dense
+    steps, but one a step never makes a run.)
     """
-    g = gaps_at(t, q, p)
-    v = rates_at(t, q, qd, p)
+    g, v = gaps_rates_at(t, q, qd, p)
     dt_res = 8.0 * _EPS * max(abs(t), 1.0)
     pose = contact_pose_s(t, q, p)
     a = accel_s(t, q, qd, p, accel_time_s(t, p))
@@ -359,21 +368,21 @@ def impact_lane(t, q, qd, p, tol, w, vrest):
             hits += 1
             kh, rh = k, r
             if not vk < -tiny:          # (closed and still: the accelerations' LCP)
-                return False, qd, 0
+                return False, qd, 0, g
     if near == 0 or hits != 1:
-        return False, qd, 0
+        return False, qd, 0, g
     vk = rh[8]
     e = p[E_SLOT] if kh < N_WALL_CONTACT else p[E_GROUND_SLOT]
     b = vk + (e * vk if vk < -vrest[kh] else 0.0)
     if not b < 0.0:                 # (impact.lcp: nothing approaches, no impulse)
-        return False, qd, 0
+        return False, qd, 0, g
     A = wdot_s(rh, w, rh)
     # impact.lcp on one row: the set {kh} by solve_dense, kept if its impulse passes the tolerance
     if not abs(A) > 1e-12 * abs(A):
-        return False, qd, 0
+        return False, qd, 0, g
     x = -b / A
     if x < -(1e-10 * max(0.0, abs(b))) / max(A, 1e-300):
-        return False, qd, 0
+        return False, qd, 0, g
     lam = max(x, 0.0)
     qd = respond_s(qd, w, rh, lam)
     logged = 1 if lam * A > tiny else 0
@@ -381,8 +390,8 @@ def impact_lane(t, q, qd, p, tol, w, vrest):
         if not g[k] < tol[_T_GAP_L] + abs(v[k]) * dt_res:
             continue
         if abs(row_at(t, q, qd, p, pose, k)[8]) < vrest[k]:
-            return False, qd, 0
-    return True, qd, logged
+            return False, qd, 0, g
+    return True, qd, logged, g
 
 
 def event_lane(t, t_next, dt, q, qd, qn, vn, p, tol, sc):
@@ -396,8 +405,8 @@ def event_lane(t, t_next, dt, q, qd, qn, vn, p, tol, sc):
     if not finite(qn, vn):
         return ALONE_CASE, qn, vn, 0, t, 0.0
     ext = sc[0:2]
-    ga = gaps_at(t, q, p)
-    gb = gaps_at(t_next, qn, p)
+    ga, va = gaps_rates_at(t, q, qd, p)
+    gb, vr = gaps_rates_at(t_next, qn, vn, p)
     low = gb[0]
     for k in range(N_CONTACT):
         low = min(low, gb[k])
@@ -408,18 +417,18 @@ def event_lane(t, t_next, dt, q, qd, qn, vn, p, tol, sc):
             quiet = False
     if quiet:
         return NO_EVENT, qn, vn, 0, t, low
-    what, te, qs, vs = crossing_lane(t, t_next, q, qd, qn, vn, ga, gb, p, tol, ext)
+    what, te, qs, vs = crossing_lane(t, t_next, q, qd, qn, vn, ga, gb, va, vr, p, tol, ext)
     if what != TAKEN:
         return what, qn, vn, 0, t, low
     if not te > t:
         return ALONE_CASE, qn, vn, 0, t, low
     inverse_mass(p, sc[2:2 + N_DOF])
-    taken, vs, logged = impact_lane(te, qs, vs, p, tol, tuple_of(sc[2:2 + N_DOF]), sc[2 + N_DOF:])
+    taken, vs, logged, ge = impact_lane(te, qs, vs, p, tol, tuple_of(sc[2:2 + N_DOF]), sc[2 + N_DOF:])
     if not taken:
         return ALONE_CASE, qn, vn, 0, t, low
-    qb, vb = restep(te, qs, vs, t_next, p)
-    gb = gaps_at(t_next, qb, p)
-    what, _, _, _ = crossing_lane(te, t_next, qs, vs, qb, vb, gaps_at(te, qs, p), gb, p, tol, ext)
+    qb, vb = restep(te, accel_time_s(te, p), qs, vs, t_next, p)
+    gb, vr = gaps_rates_at(t_next, qb, vb, p)
+    what, _, _, _ = crossing_lane(te, t_next, qs, vs, qb, vb, ge, gb, rates_at(te, qs, vs, p), vr, p, tol, ext)
     if what != NO_EVENT:
         return ALONE_CASE, qn, vn, 0, t, low
     low = gb[0]
