@@ -72,7 +72,7 @@ def locate(model, step, kind, pos, ta, q, qd, tl, fl, tr, fr, guess, p, tol, m, 
     """
     side = 0
     last = -1.0
-    ttol = 4.0 * 2.220446049250313e-16 * max(abs(tr), tr - ta)
+    ttol = time_tolerance(ta, tr)
     ftol = GAP_ROUNDOFF * tol[T_EVENT] if kind == GAP_EVENT else -1.0
     t_start = tl
     done = False
@@ -80,28 +80,49 @@ def locate(model, step, kind, pos, ta, q, qd, tl, fl, tr, fr, guess, p, tol, m, 
         if tr - tl <= ttol or (tl > t_start and fl <= ftol):
             done = True
             break
-        if it == 0 and tl < guess < tr:
-            s = guess
-        else:
-            s = (tl * fr - tr * fl) / (fr - fl)
-            if not (tl <= s <= tr):       # (NaN: fl = fr)
-                s = 0.5 * (tl + tr)
-        s = min(max(s, tl + 0.5 * ttol), tr - 0.5 * ttol)
+        s = illinois_probe(it, tl, fl, tr, fr, guess, ttol)
         f = event_value(model, step, kind, pos, ta, q, qd, s, p, tol, m, ws)
         last = s
-        if f >= 0.0:
-            tl, fl = s, f
-            if side == -1:
-                fr *= 0.5
-            side = -1
-        else:
-            tr, fr = s, f
-            if side == 1:
-                fl *= 0.5
-            side = 1
+        tl, fl, tr, fr, side = illinois_keep(s, f, tl, fl, tr, fr, side)
     if not done and tr - tl > ttol:
         ws.k[FLAGS, 0] |= WARN_LOCATE
     return tl, tr, last
+
+
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
+def time_tolerance(ta, tr):
+    """How close :func:`locate` brackets an event in a step from ta (tr: the bracket's right end)."""
+    return 4.0 * 2.220446049250313e-16 * max(abs(tr), tr - ta)
+
+
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
+def illinois_probe(it, tl, fl, tr, fr, guess, ttol):
+    """:func:`locate`'s probe number ``it`` in the bracket (tl, tr): the guess first, then the secant's root (the
+    middle where that is outside or NaN, fl = fr), at least half the tolerance inside each end."""
+    if it == 0 and tl < guess < tr:
+        s = guess
+    else:
+        s = (tl * fr - tr * fl) / (fr - fl)
+        if not (tl <= s <= tr):       # (NaN: fl = fr)
+            s = 0.5 * (tl + tr)
+    return min(max(s, tl + 0.5 * ttol), tr - 0.5 * ttol)
+
+
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
+def illinois_keep(s, f, tl, fl, tr, fr, side):
+    """The bracket after a probe at s of value f: ``(tl, fl, tr, fr, side)``, the end kept a second time running
+    halved (Illinois), side the end the probe replaced (-1 the left, 1 the right)."""
+    if f >= 0.0:
+        tl, fl = s, f
+        if side == -1:
+            fr *= 0.5
+        side = -1
+    else:
+        tr, fr = s, f
+        if side == 1:
+            fl *= 0.5
+        side = 1
+    return tl, fl, tr, fr, side
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -185,17 +206,38 @@ def left_bracket(model, step, k, ta, h, fa, fb, da, db, sr, q, qd, p, tol, m, ws
     """
     tl, fl = ta, fa
     probe = -1.0
-    if da > 0.0:
-        ext = ws.ext
-        nx = hermite_extrema(fa, fb, da, db, ext)
-        for j in range(nx):
-            if ext[j] < sr and hermite(fa, fb, da, db, ext[j]) > fa:
-                probe = ta + ext[j] * h
-                f = event_value(model, step, np.int64(GAP_EVENT), k, ta, q, qd, probe, p, tol, m, ws)
-                if f > fl:
-                    tl, fl = probe, f
-                break
+    s = first_hump(fa, fb, da, db, sr, ws.ext)
+    if s >= 0.0:
+        probe = ta + s * h
+        f = event_value(model, step, np.int64(GAP_EVENT), k, ta, q, qd, probe, p, tol, m, ws)
+        if f > fl:
+            tl, fl = probe, f
     return tl, fl, probe
+
+
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
+def first_hump(fa, fb, da, db, sr, ext):
+    """Where :func:`left_bracket` looks (in units of the step, before sr): the first stationary point of a gap's
+    cubic above its start, for a gap opening at the start (da > 0); -1 for none."""
+    if da > 0.0:
+        for j in range(hermite_extrema(fa, fb, da, db, ext)):
+            if ext[j] < sr and hermite(fa, fb, da, db, ext[j]) > fa:
+                return ext[j]
+    return -1.0
+
+
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
+def first_dip(fa, fb, da, db, error, sr, ext):
+    """Where :func:`first_crossing` steps into a step (in units of it) to look: the first stationary point of a
+    gap's cubic below zero, or below both ends by more than the cubic's error, before sr (sr < 0: anywhere);
+    -1 for none."""
+    for j in range(hermite_extrema(fa, fb, da, db, ext)):
+        hv = hermite(fa, fb, da, db, ext[j])
+        # (a dip: the cubic falls below both ends by more than its error; a contact sitting
+        # at its level, its cubic flat within round-off, is not looked at every step)
+        if (hv < 0.0 or hv < error < min(fa, fb) - hv) and (sr < 0.0 or ext[j] < sr):
+            return ext[j]
+    return -1.0
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -274,23 +316,18 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
         if min(fa, fb) >= band:
             continue
         # right end of the bracket: the step's end, or a dip of the cubic below its error
-        nx = hermite_extrema(fa, fb, da, db, ext)
         sr = -1.0
         fr = 0.0
         if fb < 0.0:
             sr, fr = 1.0, fb
-        for j in range(nx):
-            hv = hermite(fa, fb, da, db, ext[j])
-            # (a dip: the cubic falls below both ends by more than its error; a contact sitting
-            # at its level, its cubic flat within round-off, is not looked at every step)
-            if (hv < 0.0 or hv < dip < min(fa, fb) - hv) and (sr < 0.0 or ext[j] < sr):
-                sr = ext[j]
-                fr = event_value(model, step, gap_kind, k, ta, q, qd, ta + sr * h, p, tol, m, ws)
-                at = ta + sr * h
-                if fr >= 0.0:
-                    sr = 1.0 if fb < 0.0 else -1.0
-                    fr = fb
-                break
+        s = first_dip(fa, fb, da, db, dip, sr, ext)
+        if s >= 0.0:
+            sr = s
+            fr = event_value(model, step, gap_kind, k, ta, q, qd, ta + sr * h, p, tol, m, ws)
+            at = ta + sr * h
+            if fr >= 0.0:
+                sr = 1.0 if fb < 0.0 else -1.0
+                fr = fb
         if sr < 0.0:
             continue
         tr = ta + sr * h

@@ -36,10 +36,12 @@ import math
 
 from numba import uint64 as _u8
 
-from jackbox.engine.events import cubic_root as _cubic_root
-from jackbox.engine.gaps import (cubic_error as _cubic_error, hermite as _hermite, hermite_extrema as _hermite_extrema,
-                                 speed_bound as _speed_bound, step_reach as _step_reach)
+from jackbox.engine.events import (cubic_root as _cubic_root, first_dip as _first_dip, first_hump as _first_hump,
+                                   illinois_keep as _illinois_keep, illinois_probe as _illinois_probe,
+                                   time_tolerance as _time_tolerance)
+from jackbox.engine.gaps import (cubic_error as _cubic_error, speed_bound as _speed_bound, step_reach as _step_reach)
 from jackbox.engine.integrator import NODES as _NODES
+from jackbox.engine.modes import time_resolution as _time_resolution, within_reach as _within_reach
 from jackbox.engine.records import (BOUND_ROW as _BOUND, FIRST_ROW as _FIRST, GAP_ROUNDOFF as _GAP_ROUNDOFF,
                                     IMPULSE_ROW as _IMPULSES, LANES as _W, SCRATCH_ROW as _SCRATCH,
                                     SPEED_ROW as _SPEED, T_AREST as _T_AREST_L, T_EVENT as _T_EVENT_L,
@@ -147,11 +149,8 @@ def calm(t, t_next, q, qd, qn, vn, p, tol, ext):
             continue
         if fb < 0.0:
             return False, smallest
-        da, db = h * va[k], h * vb[k]
-        for j in range(_hermite_extrema(fa, fb, da, db, ext)):
-            hv = _hermite(fa, fb, da, db, ext[j])
-            if hv < 0.0 or hv < dip < min(fa, fb) - hv:
-                return False, smallest
+        if _first_dip(fa, fb, h * va[k], h * vb[k], dip, -1.0, ext) >= 0.0:
+            return False, smallest
     return True, smallest
 
 
@@ -161,7 +160,6 @@ def calm(t, t_next, q, qd, qn, vn, p, tol, ext):
 #: what a lane's event step says: taken (its end and impulses in S), no event after all (the trial
 #: stands), or a case it leaves to the exact loop (the member goes alone, as before)
 TAKEN, NO_EVENT, ALONE_CASE = 1, 0, -1
-_EPS = 2.220446049250313e-16
 
 
 def restep(ta, tta, q, qd, s, p):
@@ -207,7 +205,7 @@ def locate_lane(k, ta, tta, q, qd, g0, tl, fl, tr, fr, guess, half, p, tol):
     time (-1: none) and its state and gaps (where none, q, qd and g0)."""
     side = 0
     last = -1.0
-    ttol = 4.0 * _EPS * max(abs(tr), tr - ta)
+    ttol = _time_tolerance(ta, tr)
     ftol = _GAP_ROUNDOFF * tol[_T_EVENT_L]
     t_start = tl
     done = False
@@ -216,26 +214,10 @@ def locate_lane(k, ta, tta, q, qd, g0, tl, fl, tr, fr, guess, half, p, tol):
         if tr - tl <= ttol or (tl > t_start and fl <= ftol):
             done = True
             break
-        if it == 0 and tl < guess < tr:
-            s = guess
-        else:
-            s = (tl * fr - tr * fl) / (fr - fl)
-            if not (tl <= s <= tr):
-                s = 0.5 * (tl + tr)
-        s = min(max(s, tl + 0.5 * ttol), tr - 0.5 * ttol)
+        s = _illinois_probe(it, tl, fl, tr, fr, guess, ttol)
         qs, vs, gs = probe(ta, tta, q, qd, s, p)
-        f = gs[k] + half
         last = s
-        if f >= 0.0:
-            tl, fl = s, f
-            if side == -1:
-                fr *= 0.5
-            side = -1
-        else:
-            tr, fr = s, f
-            if side == 1:
-                fl *= 0.5
-            side = 1
+        tl, fl, tr, fr, side = _illinois_keep(s, gs[k] + half, tl, fl, tr, fr, side)
     return done or not tr - tl > ttol, tl, tr, last, qs, vs, gs
 
 
@@ -276,38 +258,32 @@ def crossing_lane(ta, tb, q, qd, qb, vb, ga, gb, va, vr, p, tol, ext):
         fa, fb = ga[k] + half, gb[k] + half
         if min(fa, fb) >= band:
             continue
-        nx = _hermite_extrema(fa, fb, da, db, ext)
         sr = -1.0
         fr = 0.0
         if fb < 0.0:
             sr, fr = 1.0, fb
-        for j in range(nx):
-            hv = _hermite(fa, fb, da, db, ext[j])
-            if (hv < 0.0 or hv < dip < min(fa, fb) - hv) and (sr < 0.0 or ext[j] < sr):
-                sr = ext[j]
-                at = ta + sr * h
-                qa, vat, gat = probe(ta, tta, q, qd, at, p)
-                fr = gat[k] + half
-                if fr >= 0.0:
-                    sr = 1.0 if fb < 0.0 else -1.0
-                    fr = fb
-                break
+        s = _first_dip(fa, fb, da, db, dip, sr, ext)
+        if s >= 0.0:
+            sr = s
+            at = ta + sr * h
+            qa, vat, gat = probe(ta, tta, q, qd, at, p)
+            fr = gat[k] + half
+            if fr >= 0.0:
+                sr = 1.0 if fb < 0.0 else -1.0
+                fr = fb
         if sr < 0.0:
             continue
         tr = ta + sr * h
         if best_k >= 0 and tr > t_hi:
             continue
         tl, fl = ta, fa             # events.left_bracket
-        if da > 0.0:
-            nx = _hermite_extrema(fa, fb, da, db, ext)
-            for j in range(nx):
-                if ext[j] < sr and _hermite(fa, fb, da, db, ext[j]) > fa:
-                    at = ta + ext[j] * h
-                    qa, vat, gat = probe(ta, tta, q, qd, at, p)
-                    f = gat[k] + half
-                    if f > fl:
-                        tl, fl = at, f
-                    break
+        s = _first_hump(fa, fb, da, db, sr, ext)
+        if s >= 0.0:
+            at = ta + s * h
+            qa, vat, gat = probe(ta, tta, q, qd, at, p)
+            f = gat[k] + half
+            if f > fl:
+                tl, fl = at, f
         if fl <= 0.0:
             return ALONE_CASE, -1.0, q, qd
         guess = ta + h * _cubic_root(fa, fb, da, db, (tl - ta) / h, sr)
@@ -344,7 +320,7 @@ def impact_lane(t, q, qd, p, tol, w, vrest):
     steps, but one a step never makes a run.)
     """
     g, v = gaps_rates_at(t, q, qd, p)
-    dt_res = 8.0 * _EPS * max(abs(t), 1.0)
+    dt_res = _time_resolution(t)
     pose = contact_pose_s(t, q, p)
     a = accel_s(t, q, qd, p, accel_time_s(t, p))
     half = 0.5 * tol[_T_EVENT_L]
@@ -355,7 +331,7 @@ def impact_lane(t, q, qd, p, tol, w, vrest):
     kh = -1
     rh = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     for k in range(N_CONTACT):
-        if not g[k] < tol[_T_GAP_L] + abs(v[k]) * dt_res:         # (modes.within_reach)
+        if not _within_reach(g[k], v[k], dt_res, tol):
             continue
         near += 1
         r = row_at(t, q, qd, p, pose, k)
@@ -387,7 +363,7 @@ def impact_lane(t, q, qd, p, tol, w, vrest):
     qd = respond_s(qd, w, rh, lam)
     logged = 1 if lam * A > tiny else 0
     for k in range(N_CONTACT):      # the rows again at the new rates: none comes to rest
-        if not g[k] < tol[_T_GAP_L] + abs(v[k]) * dt_res:
+        if not _within_reach(g[k], v[k], dt_res, tol):
             continue
         if abs(row_at(t, q, qd, p, pose, k)[8]) < vrest[k]:
             return False, qd, 0, g
