@@ -319,9 +319,9 @@ def start_binding(todo: dict, costs: dict | None = None) -> list[str]:
     """Hand about half of the model functions to compile to a helper process, before compiling the rest here.
 
     todo: function name -> its binding part's file, for the functions whose
-    machine code is not cached. Shared by PART_COST, or costs where given (:func:`share_out`); the helper of
-    :func:`warm_binder`
-    if there is one (it has paid Numba's first compile already). Only when no
+    machine code is not cached. Shared by PART_COST, or by costs where they
+    name a part (:func:`share_out`); the helper of :func:`warm_binder` if
+    there is one (it has paid Numba's first compile already). Only when no
     helper is compiling engine parts (two cores, two processes). Returns the
     functions handed out; :func:`wait_binding` waits for one of them.
     """

@@ -413,7 +413,6 @@ def event_lane(t, t_next, dt, q, qd, qn, vn, p, tol, sc):
     return TAKEN, qb, vb, logged, te, low
 
 
-
 def lane_event(t, t_next, dt, S, lane, at, to, p, tol):
     """A lane's event step (the model's ``lane_event``, passed to :func:`lanes`): :func:`event_lane` for lane
     ``lane`` of the block state S, from its state in the rows from ``at`` to its trial in those from ``to``.
