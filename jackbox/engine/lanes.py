@@ -27,9 +27,12 @@ sines and cosines of :func:`sincos`, a polynomial that LLVM can vectorise,
 within 2 eps of the library's) only in a step where some live lane's bound
 runs low: the extra T_GAP, a thousand times what that difference can move a
 gap, keeps a lane's "quiet" from ever being the exact loop's "not quiet".
-Otherwise the lanes stop before that step and say which are quiet
-(:mod:`jackbox.engine.members` takes the others through the exact loop,
-alone).
+A lane that is not quiet takes the step if the exact loop would find no
+event in it (:func:`calm`), or takes the exact loop's impact step itself,
+on floats, where it is a plain one (:func:`event_lane`, in the model's
+``lane_event`` part). Otherwise the lanes stop before that step and say
+which are quiet (:mod:`jackbox.engine.members` takes the others through the
+exact loop, alone).
 """
 
 import math
