@@ -315,7 +315,7 @@ _JITTED = {**{name: "" for name in ("tuple_of", "accel_s", "accel_time_s", "box_
            # a lane's event step (lanes.event_lane): each a function of its own, called only where a lane has
            # an event (their re-step's RK4 compiled once, in restep)
            **{name: ", _nrt=False" for name in ("event_lane", "crossing_lane", "locate_lane", "impact_lane",
-                                                 "restep", "probe", "gaps_at", "rates_at", "gaps_rates_at", "row_at",
+                                                 "restep", "probe", "gaps_rates_at", "row_at",
                                                  "inverse_mass")},
            # the held steps' helpers (flight.ride): inlined by Numba where a call would pass the rows through
            # memory; a pose's terms (after two sines and cosines, a call costs little) and the factorization

@@ -177,18 +177,7 @@ def restep(ta, tta, q, qd, s, p):
 def probe(ta, tta, q, qd, s, p):
     """:func:`restep` to s and the gaps there (``events.event_value`` of a free lane): ``(q, qd, gaps)``."""
     qs, vs = restep(ta, tta, q, qd, s, p)
-    return qs, vs, gaps_at(s, qs, p)
-
-
-def gaps_at(t, q, p):
-    """The model's ``phi_s`` (a function of its own: inlined at each of the event step's calls, it took seconds
-    of compiling)."""
-    return phi_s(t, q, p)
-
-
-def rates_at(t, q, qd, p):
-    """The model's ``gap_rate_s`` (see :func:`gaps_at`)."""
-    return gap_rate_s(t, q, qd, p)
+    return qs, vs, phi_s(s, qs, p)
 
 
 def gaps_rates_at(t, q, qd, p):
@@ -198,7 +187,8 @@ def gaps_rates_at(t, q, qd, p):
 
 
 def row_at(t, q, qd, p, pose, k):
-    """The model's ``contact_row_s`` (see :func:`gaps_at`)."""
+    """The model's ``contact_row_s``, a function of its own (inlined at each of the event step's calls, the
+    model's rows took seconds of compiling)."""
     return contact_row_s(t, q, qd, p, pose, k)
 
 
@@ -329,14 +319,12 @@ def impact_lane(t, q, qd, p, tol, w, vrest):
     half = 0.5 * tol[_T_EVENT_L]
     tiny = 1e-3 * tol[_T_VREST_L]
     flight = _FLIGHT_TOL * math.sqrt(tol[_T_EVENT_L] / tol[_T_AREST_L])
-    near = 0
     hits = 0
     kh = -1
     rh = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     for k in range(N_CONTACT):
         if not _within_reach(g[k], v[k], dt_res, tol):
             continue
-        near += 1
         r = row_at(t, q, qd, p, pose, k)
         s = row_dot_s(r, a)
         rise = max(-half - g[k], 0.0) + tol[_T_EVENT_L]
@@ -348,7 +336,7 @@ def impact_lane(t, q, qd, p, tol, w, vrest):
             kh, rh = k, r
             if not vk < -tiny:          # (closed and still: the accelerations' LCP)
                 return False, qd, 0, g
-    if near == 0 or hits != 1:
+    if hits != 1:                   # (none within reach, several, or none approaching)
         return False, qd, 0, g
     vk = rh[8]
     e = p[E_SLOT] if kh < N_WALL_CONTACT else p[E_GROUND_SLOT]
@@ -360,7 +348,7 @@ def impact_lane(t, q, qd, p, tol, w, vrest):
     if not abs(A) > 1e-12 * abs(A):
         return False, qd, 0, g
     x = -b / A
-    if x < -(1e-10 * max(0.0, abs(b))) / max(A, 1e-300):
+    if x < -(1e-10 * abs(b)) / max(A, 1e-300):
         return False, qd, 0, g
     lam = max(x, 0.0)
     qd = respond_s(qd, w, rh, lam)
@@ -407,7 +395,7 @@ def event_lane(t, t_next, dt, q, qd, qn, vn, p, tol, sc):
         return ALONE_CASE, qn, vn, 0, t, low
     qb, vb = restep(te, accel_time_s(te, p), qs, vs, t_next, p)
     gb, vr = gaps_rates_at(t_next, qb, vb, p)
-    what, _, _, _ = crossing_lane(te, t_next, qs, vs, qb, vb, ge, gb, rates_at(te, qs, vs, p), vr, p, tol, ext)
+    what, _, _, _ = crossing_lane(te, t_next, qs, vs, qb, vb, ge, gb, gap_rate_s(te, qs, vs, p), vr, p, tol, ext)
     if what != NO_EVENT:
         return ALONE_CASE, qn, vn, 0, t, low
     low = gb[0]
