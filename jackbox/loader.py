@@ -318,11 +318,13 @@ _JITTED = {**{name: "" for name in ("tuple_of", "accel_s", "accel_time_s", "box_
                                                  "restep", "probe", "gaps_rates_at", "row_at",
                                                  "inverse_mass")},
            # the held steps' helpers (flight.ride): inlined by Numba where a call would pass the rows through
-           # memory; a pose's terms (after two sines and cosines, a call costs little) and the factorization
-           # of three or four rows (a function of its own: inlined, it adds seconds of compiling) left to LLVM
-           **{name: "" for name in ("factor2", "solve2", "factor4", "solve4", "contact_pose_s")},
-           **{name: ', inline="always"' for name in ("contact_row_s", "held_rows", "factor_held", "held_push",
-                                                      "held_stage", "settle")},
+           # memory (factor4 too: called, a corner's step took 1.2 times as long, and the stage could not skip
+           # a dependent fourth row's work, known only once it is factored); a pose's terms (after two sines
+           # and cosines, a call costs little) and the solves (solve4 at three sites: inlined, it added two
+           # seconds of compiling and no speed) left to LLVM
+           **{name: "" for name in ("factor2", "solve2", "solve4", "contact_pose_s")},
+           **{name: ', inline="always"' for name in ("contact_row_s", "held_rows", "factor_held", "factor4",
+                                                      "held_push", "held_stage", "settle")},
            "trade": ", _nrt=False"}
 
 

