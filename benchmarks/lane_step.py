@@ -40,13 +40,14 @@ OPS_PER_CYCLE = 16
 
 
 def compiled_lanes(scene: str):
-    """The model's lanes part, compiled here (no cache), as a Numba function callable from Python; and its IR."""
+    """The model's lanes part, compiled here (no cache), as Numba functions callable from Python (the lanes and
+    the table of terms of time they read); and the lanes' IR."""
     text = loader.binding_parts((loader.GENERATED_DIR / f"{scene}.py").read_text(), lanes=True)["lanes"]
     text = text.replace("cache=True", "cache=False").split("COMPILED = ")[0]
     space: dict = {}
     exec(compile(text, f"lanes part of {scene}", "exec"), space)
     ir = numba.cfunc(engine.SIGNATURES["lanes"])(space["lanes"]).inspect_llvm()
-    return numba.njit(space["lanes"]), ir
+    return numba.njit(space["lanes"]), numba.njit(space["time_table"]), ir
 
 
 def step_loop_ops(ir: str) -> float:
@@ -82,7 +83,7 @@ def main(argv=None) -> int:
     W = engine.LANES
     spec = plan(args.scene, W, perturb={"theta_jack": 1e-6})
     rows = _set_up(spec, _kernel(spec), 0, W)
-    lanes, ir = compiled_lanes(args.scene)
+    lanes, time_table, ir = compiled_lanes(args.scene)
     p, tol = rows["params"][0].copy(), rows["tol"][0].copy()
 
     def fresh():
@@ -96,12 +97,14 @@ def main(argv=None) -> int:
     live, quiet = np.ones(W, np.int64), np.zeros(W, np.int64)
     dt = 1e-6
     never = numba.njit(lambda t, t_next, dt, S, lane, at, to, p, tol: -1)   # (free flight: no event to take)
-    lanes(0.0, dt, 0, 10, fresh(), p, tol, live, quiet, never)
+    tab = np.empty(2 * args.steps * time_table(0.0, dt, 0, p, np.empty(0)))    # (a study's table of its steps)
+    time_table(0.0, dt, args.steps, p, tab)
+    lanes(0.0, dt, 0, 10, fresh(), p, tol, live, quiet, tab, never)
     times = []
     for _ in range(args.repeat):
         S = fresh()
         t0 = time.perf_counter()
-        reached = lanes(0.0, dt, 0, args.steps, S, p, tol, live, quiet, never)
+        reached = lanes(0.0, dt, 0, args.steps, S, p, tol, live, quiet, tab, never)
         times.append(time.perf_counter() - t0)
         if reached != args.steps:
             raise SystemExit(f"the block stopped at step {reached}: not free flight")

@@ -206,7 +206,7 @@ def emit_module(model: Model, command: str) -> str:
         f"CONSTRAINT_NAMES = {tuple(model.constraint_names)!r}",
         f"E_SLOT = {[s.name for s in model.p].index('e')}",
         f"E_GROUND_SLOT = {[s.name for s in model.p].index('e_ground')}",
-        f"FUNCTIONS = {tuple(fn.name for fn in fs) + ('accel_time_s', 'contact_rows', 'contact_pose_s', 'contact_row_s') + TUPLE_HELPERS!r}",
+        f"FUNCTIONS = {tuple(fn.name for fn in fs) + ('accel_time_s', 'time_of', 'contact_rows', 'contact_pose_s', 'contact_row_s') + TUPLE_HELPERS!r}",
     ]
     bodies += _contact_rows(model, inputs, names)
     bodies += _tuple_helpers(len(model.q), len(model.p))
@@ -431,7 +431,12 @@ def _accel_split(fn: Function, outs, replacements, position, inputs, printer, ti
     fn = dataclasses.replace(fn, doc="accel() for the free-flight loop: q, qd tuples and tt = accel_time_s(t, p) "
                                      "in, a tuple out.")
     body = _function(fn, outs, state, None, inputs, printer, temps=state, extra_args=("tt",), unpack=unpack)
-    return [head, body]
+    items = ", ".join(f"a[k + {i}]" for i in range(len(frontier))) + ("," if len(frontier) == 1 else "")
+    read = ("def time_of(a, k):\n"
+            '    """accel_time_s()\'s terms read back from a[k:] (an ensemble\'s table of them: '
+            'jackbox.engine.lanes)."""\n'
+            f"    return ({items})\n")
+    return [head, body, read]
 
 
 def _function(fn: Function, outs, replacements, position, inputs, printer, *, temps=None,

@@ -59,7 +59,8 @@ FLIGHT_SOURCE = Path(__file__).with_name("engine") / "flight.py"
 LANES_SOURCE = Path(__file__).with_name("engine") / "lanes.py"
 #: the lanes of a model that has none compiled (yet): every lane "not quiet", so a block would step
 #: each member alone through the exact loop (a kernel binds the real ones before a study uses them)
-LANES_STUB = ("def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet, lane_event):\n"
+LANES_STUB = ("def time_table(t0, dt, n, p, out):\n    return 0\n\n\n"
+              "def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet, tab, lane_event):\n"
               "    for l in range(quiet.shape[0]):\n        quiet[l] = 0\n    return i\n\n\n"
               "def lane_event(t, t_next, dt, S, lane, at, to, p, tol):\n    return -1\n")
 #: what a model's ride costs to compile (shaken, 2 cores): only to share the work of a first held contact
@@ -288,8 +289,9 @@ def _binding_parts(model_text: str, flight_text: str, lanes_text: str, stub_text
 
 
 #: functions compiled together, as one binding part: the two RK4 loops of the hot path share every
-#: helper (the model's accelerations on tuples, the tableau), which each part would compile again
-GROUPS = {"flight": ("free_step", "fly")}
+#: helper (the model's accelerations on tuples, the tableau), which each part would compile again; the
+#: lanes and the table of terms of time they read share the model's accel_time_s
+GROUPS = {"flight": ("free_step", "fly"), "lanes": ("time_table", "lanes")}
 
 
 def part_entries() -> dict[str, tuple[str, ...]]:
@@ -306,8 +308,8 @@ def part_entries() -> dict[str, tuple[str, ...]]:
 
 #: the helpers of the hot path a part compiles as njit functions (callees inlined by LLVM, or
 #: by Numba where marked), with their options
-_JITTED = {**{name: "" for name in ("tuple_of", "accel_s", "accel_time_s", "box_motion_s", "axpy_s", "wsum_s",
-                                    "wdot_s", "row_dot_s", "respond_s", "respond2_s", "respond4_s")},
+_JITTED = {**{name: "" for name in ("tuple_of", "accel_s", "accel_time_s", "time_of", "box_motion_s", "axpy_s",
+                                    "wsum_s", "wdot_s", "row_dot_s", "respond_s", "respond2_s", "respond4_s")},
            **{name: ', inline="always"' for name in INLINED + LANES_INLINED},
            # a lane near a wall (lanes.calm): phi_s and gap_rate_s inlined, so that LLVM computes the sine
            # and cosine of each angle once for both; no references counted (calm allocates nothing)

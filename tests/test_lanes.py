@@ -136,6 +136,20 @@ def test_members_in_a_run_of_dense_steps_have_the_bits_they_have_alone(entries):
         assert same_bits(getattr(lanes, key), getattr(alone, key)), key
 
 
+def test_a_study_longer_than_its_table_of_terms_of_time_has_the_bits_alone(entries):
+    """The lanes read a shaken box's terms of time (its force's sine) from a table made once for the study
+    (lanes.time_table) for its first TIME_ROWS steps, and compute them after: both the same numbers as alone."""
+    from jackbox.engine.records import TIME_ROWS
+
+    scene = jackbox.load_scene("shaken")
+    t_end = 1.1 * TIME_ROWS * scene.dt
+    lanes, alone = both(scene, LANES + 3, entries, perturb={"theta_jack": 1e-3}, t_end=t_end, seed=4,
+                        samples=[0.5 * t_end, t_end])
+    assert np.all(alone.status == 0) and np.all(alone.impacts > 0)
+    for key in ARRAYS:
+        assert same_bits(getattr(lanes, key), getattr(alone, key)), key
+
+
 def test_any_split_into_blocks_gives_the_same_bits(entries):
     kw = dict(perturb={"theta_jack": 1e-3}, t_end=2.0, seed=1, samples=[1.0], lanes=True)
     whole = ensemble("shaken", 2 * LANES + 1, **kw)

@@ -224,9 +224,14 @@ def exact_on(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_total
                        log, n_ev, ws)
 
 
-def lanes_none(t0, dt, i, i_stop, S, p, tol, live, quiet, lane_event):
+def lanes_none(t0, dt, i, i_stop, S, p, tol, live, quiet, tab, lane_event):
     """(a kernel's model has no lanes: a GPU's member is a thread)"""
     return i
+
+
+def time_table_none(t0, dt, n, p, out):
+    """(nor their table of terms of time)"""
+    return 0
 
 
 def lane_event_none(t, t_next, dt, S, lane, at, to, p, tol):
@@ -422,6 +427,7 @@ from jackbox.engine.records import Events as _Events, Model as _Model, Samples a
 
 _gpu.to_device(globals())
 _exact = _gpu.device(_gpu.exact_on)
+_time_table = _gpu.device(_gpu.time_table_none)
 _lane_event = _gpu.device(_gpu.lane_event_none)
 _lanes = _gpu.device(_gpu.lanes_none)
 _ride = _gpu.device(_gpu.ride_none)
@@ -434,7 +440,7 @@ _HAS_CALM = {HAS_CALM}
 @_cuda.jit(device=True, inline="always")
 def _model():
     return _Model({N_DOF}, {N_CONTACT}, {N_WALL}, {E_SLOT}, {E_GROUND_SLOT}, {PRESCRIBED}, {HAS_GROUND},
-                  {FUNCTIONS}, _lane_event, _lanes, _ride)
+                  {FUNCTIONS}, _time_table, _lane_event, _lanes, _ride)
 
 
 @_cuda.jit(device=True, inline="always")
@@ -651,7 +657,7 @@ def calm_text(model_text: str) -> str:
 def kernel_text(model_text: str, flight_text: str, constants: dict) -> str:
     """The text of a model's kernel file (see :data:`KERNELS`): the model's text (with the loader's stubs for
     what it lacks), the hot path's, the lanes' calm test, the kernels."""
-    functions = ", ".join(name for name in SIGNATURES if name not in ("lane_event", "lanes", "ride"))
+    functions = ", ".join(name for name in SIGNATURES if name not in ("time_table", "lane_event", "lanes", "ride"))
     filled = KERNELS
     for key, value in {**constants, "FUNCTIONS": functions, "SC": SC, "SN": SN, "SK": SK, "MODE_SLOTS": MODE_SLOTS,
                        "ROW": constants["N_DOF"] + ROW_EXTRA,

@@ -13,8 +13,10 @@ branch, the parameters and tolerances read into registers before it
 (``params_of``), and a trip count read at run time (a constant one of LANES is
 unrolled whole before the vectoriser sees it), so a loop becomes vector
 instructions of eight lanes. The terms of time (a shaking force's sine) are
-the block's: its members share their parameters, so each is computed once
-per stage time for all of them. Each lane's step is the hot path's RK4 step
+the study's: its members share their parameters, so they are computed once
+per stage time for all of them, into a table (:func:`time_table`) that every
+block reads (computed per block-step, they were a tenth of a shaken study's
+time). Each lane's step is the hot path's RK4 step
 (``rk4_stages``, the same operations in the same order), so a member stepped
 here has the bits it would have had alone.
 
@@ -429,7 +431,23 @@ def lane_event(t, t_next, dt, S, lane, at, to, p, tol):
     return what
 
 
-def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet, event):
+def time_table(t0, dt, n, p, out):
+    """The terms of time (``accel_time_s``) of steps 0 .. n - 1 at the two stage times a step computes them
+    (:func:`step_block`: its middle and its end, the same operations), into ``out``: row i, ``out[2 K i:2 K (i +
+    1)]``, the middle's K terms and the end's; as many rows as fit. Returns K (with n = 0: K alone)."""
+    K = len(accel_time_s(t0, p))
+    rows = min(n, out.shape[0] // (2 * K)) if K > 0 else 0
+    for i in range(rows):
+        t = t0 + i * dt
+        ttm = accel_time_s(t + _NODES[1] * dt, p)
+        tt_next = accel_time_s(t0 + (i + 1) * dt, p)
+        for k in range(K):
+            out[2 * K * i + k] = ttm[k]
+            out[2 * K * i + K + k] = tt_next[k]
+    return K
+
+
+def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet, tab, event):
     """Steps i, i+1, ... of the block's live lanes together while each step is quiet for every live lane.
 
     S: the block's state (rows q, qd, trial q, trial qd, then per lane a bound
@@ -441,6 +459,9 @@ def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet, event):
     lane and quiet[lane] says whether that lane may take it. A lane that is
     not live is stepped too (its numbers are not used). Free boxes only: six
     coordinates, box first.
+
+    tab: the study's terms of time (:func:`time_table`, made with the same t0
+    and dt), read for the steps it covers and computed for the others.
 
     A live lane near a wall takes the step if the exact loop would find no
     event in it (:func:`calm`), or if ``event`` (the model's
@@ -467,14 +488,14 @@ def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet, event):
             S[SA + lane] = _speed_bound(lane_state(S, QV, lane), tl)
     tt = accel_time_s(t, p)
     while i < i_stop:
-        stop, tt = step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, 0, QB, GA, GB, SA, SB, event)
+        stop, tt = step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, tab, 0, QB, GA, GB, SA, SB, event)
         if stop:
             return i
         i += 1
         if i == i_stop:
             trade(S, n)     # the state is in the trial's rows
             return i
-        stop, tt = step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, QB, 0, GB, GA, SB, SA, event)
+        stop, tt = step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, tab, QB, 0, GB, GA, SB, SA, event)
         if stop:
             trade(S, n)     # the state is in the trial's rows and the trial in the state's
             return i
@@ -482,7 +503,7 @@ def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet, event):
     return i
 
 
-def step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, A, B, GA, GB, SA, SB, event):
+def step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, tab, A, B, GA, GB, SA, SB, event):
     """Step i of every lane from the state in rows A.. to its trial in rows B.. (bounds: GA, SA to GB, SB).
 
     Returns (how many live lanes are not calm: 0 if the step is taken, the
@@ -497,8 +518,11 @@ def step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, A, B, GA, GB, SA, 
     t = t0 + i * dt
     tm = t + _NODES[1] * dt
     t_next = t0 + (i + 1) * dt
-    ttm = accel_time_s(tm, p)
-    tt_next = accel_time_s(t_next, p)
+    K = len(tt)
+    if 2 * K * (i + 1) <= tab.shape[0]:     # (the study's table: read, not computed)
+        ttm, tt_next = time_of(tab, 2 * K * i), time_of(tab, 2 * K * i + K)
+    else:
+        ttm, tt_next = accel_time_s(tm, p), accel_time_s(t_next, p)
     low = 0
     for lane in range(n):
         qn, vn = rk4_stages(lane_state(S, A, lane), lane_state(S, A + QV, lane), dt, pt, t, tt, tm, ttm, t_next,

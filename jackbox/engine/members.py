@@ -25,7 +25,7 @@ from .draws import START, TWIN, draw_normal, draw_uniform
 from .gaps import speed_bound
 from .modes import time_resolution, within_reach
 from .records import (DERIVE_CROSS, DONE, EXACT_AT, FALLBACK, IMPACT_LOG_FULL, IMPULSE, LANES, MODE_AT, MODE_SLOTS, MODEL_AT,
-                      STAGES_AT, T_BOXV, T_GAP, WARNING, BLOCK_ROWS, BOUND_ROW, FIRST_ROW, IMPULSE_ROW, SPEED_ROW, Events, ExactType, ModelType, Samples,
+                      STAGES_AT, T_BOXV, T_GAP, TIME_ROWS, WARNING, BLOCK_ROWS, BOUND_ROW, FIRST_ROW, IMPULSE_ROW, SPEED_ROW, Events, ExactType, ModelType, Samples,
                       StagesType, from_table, TWIN_FIN)
 from .tolerances import set_tolerances
 
@@ -469,6 +469,16 @@ def fold_impulses(S, lane, tally):
 
 
 @njit(cache=True, no_cpython_wrapper=True)
+def time_table(model, p, dt, n_steps):
+    """A study's terms of time, made once for every block's lanes (the model's ``time_table``): those of its
+    first TIME_ROWS steps at most; empty where the model has none."""
+    K = model.time_table(0.0, dt, 0, p, np.empty(0))
+    tab = np.empty(min(n_steps, TIME_ROWS) * 2 * K)
+    model.time_table(0.0, dt, n_steps, p, tab)
+    return tab
+
+
+@njit(cache=True, no_cpython_wrapper=True)
 def new_block(model):
     """A block's state (rows of LANES floats, see :mod:`.lanes`) and the per-lane arrays that go with it."""
     W, C = LANES, model.n_contact
@@ -550,7 +560,7 @@ def take_trials(S, live, quiet, todo):
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def block_to(model, exact, stages, B, p, tol, dt, i, stop, out, log):
+def block_to(model, exact, stages, B, p, tol, tab, dt, i, stop, out, log):
     """Every live lane of block B from step i to stop; returns the log.
 
     Free members go through the model's lanes together (``model.lanes``): each
@@ -598,7 +608,7 @@ def block_to(model, exact, stages, B, p, tol, dt, i, stop, out, log):
             if n_live == 0:
                 j = j_stop
                 continue
-            j = model.lanes(0.0, dt, j, j_stop, S, p, tol, live, quiet, model.lane_event)
+            j = model.lanes(0.0, dt, j, j_stop, S, p, tol, live, quiet, tab, model.lane_event)
             if j == j_stop:
                 continue
             n_todo = take_trials(S, live, quiet, todo)
@@ -619,8 +629,8 @@ def block_to(model, exact, stages, B, p, tol, dt, i, stop, out, log):
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def run_block(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin,
-              first, count):
+def run_block(model, exact, stages, Q0, QD0, p, tol, tab, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd,
+              fin, first, count):
     """Members first .. first + count - 1 (count <= LANES) as one block; outputs as :func:`run_member`'s.
 
     The members share p and tol; the block steps them through
@@ -653,7 +663,7 @@ def run_block(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, 
     i = 0
     while i < n_steps:
         stop = sample_steps[s] if s < n_samples else n_steps
-        log = block_to(model, exact, stages, B, p, tol, dt, i, stop, out, log)
+        log = block_to(model, exact, stages, B, p, tol, tab, dt, i, stop, out, log)
         i = stop
         sampled = s < n_samples and stop == sample_steps[s]
         for lane in range(count):
@@ -701,19 +711,21 @@ def alone_to(model, exact, stages, B, lane, p, tol, dt, i, end, out, log):
 def run_member_blocks(table, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
     """:func:`run_members` in blocks of LANES members (:func:`run_block`), in parallel; the members share P[0], TOL[0]."""
     model, exact, stages = parts(table)
-    all_blocks(model, exact, stages, Q0, QD0, P[0], TOL[0], dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd,
-               fin)
+    tab = time_table(model, P[0], dt, n_steps)
+    all_blocks(model, exact, stages, Q0, QD0, P[0], TOL[0], tab, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q,
+               fin_qd, fin)
 
 
 @njit(cache=True, no_cpython_wrapper=True, parallel=True)
-def all_blocks(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
+def all_blocks(model, exact, stages, Q0, QD0, p, tol, tab, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd,
+               fin):
     N = Q0.shape[0]
     nb = (N + LANES - 1) // LANES
     s = spread_stride(nb)     # (threads get blocks in spread order)
     for i in prange(nb):
         first = (i * s % nb) * LANES
-        run_block(model, exact, stages, Q0, QD0, p, tol, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd,
-                  fin, first, min(LANES, N - first))
+        run_block(model, exact, stages, Q0, QD0, p, tol, tab, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q,
+                  fin_qd, fin, first, min(LANES, N - first))
 
 
 #: chaos twins in a block: the references in its first PAIRS lanes, their twins in the others
@@ -721,8 +733,8 @@ PAIRS = LANES // 2
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, dt, n_steps, renorm_steps, scale, stretch, fin,
-                   first, count):
+def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, tab, dt, n_steps, renorm_steps, scale, stretch,
+                   fin, first, count):
     """Twins of members first .. first + count - 1 (count <= PAIRS) as one block; outputs as :func:`run_twins`'s.
 
     The references step in the block's first PAIRS lanes and their twins in
@@ -767,7 +779,7 @@ def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, dt, n_steps, 
     n_ended = 0
     while i < n_steps and n_ended < count:
         stop = min(i + renorm_steps, n_steps)
-        log = block_to(model, exact, stages, B, p, tol, dt, i, stop, out, log)
+        log = block_to(model, exact, stages, B, p, tol, tab, dt, i, stop, out, log)
         for r in range(count):
             if ended[r]:
                 continue
@@ -815,19 +827,21 @@ def run_twin_member_blocks(table, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_
     """:func:`run_twin_members` in blocks of PAIRS twin pairs (:func:`run_twin_block`), in parallel; the members share
     P[0], TOL[0]."""
     model, exact, stages = parts(table)
-    all_twin_blocks(model, exact, stages, Q0, QD0, DQ, DQD, P[0], TOL[0], dt, n_steps, renorm_steps, scale, stretch,
-                    fin)
+    tab = time_table(model, P[0], dt, n_steps)
+    all_twin_blocks(model, exact, stages, Q0, QD0, DQ, DQD, P[0], TOL[0], tab, dt, n_steps, renorm_steps, scale,
+                    stretch, fin)
 
 
 @njit(cache=True, no_cpython_wrapper=True, parallel=True)
-def all_twin_blocks(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, dt, n_steps, renorm_steps, scale, stretch, fin):
+def all_twin_blocks(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, tab, dt, n_steps, renorm_steps, scale, stretch,
+                    fin):
     N = Q0.shape[0]
     nb = (N + PAIRS - 1) // PAIRS
     s = spread_stride(nb)     # (threads get blocks in spread order)
     for i in prange(nb):
         first = (i * s % nb) * PAIRS
-        run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, dt, n_steps, renorm_steps, scale, stretch, fin,
-                       first, min(PAIRS, N - first))
+        run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, tab, dt, n_steps, renorm_steps, scale, stretch,
+                       fin, first, min(PAIRS, N - first))
 
 
 # ---------------------------------------------------------------------------

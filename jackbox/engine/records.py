@@ -156,9 +156,11 @@ SIGNATURES = {
     "fly": types.Tuple((I8, F8, I8))(F8, F8, I8, I8, V1, V1, V1, V1, F8, V1, V1, V1, V2, V2, I8, I8, I8, I8),
     # an ensemble block's lanes (jackbox/engine/lanes.py, compiled with the model when a study needs it): a
     # lane's event step (t, t_next, dt, S, lane, at, to, p, tol) -> what, its own part (compiled beside the
-    # lanes, in parallel) and passed to them; the lanes (t0, dt, i, i_stop, S, p, tol, live, quiet, lane_event)
+    # lanes, in parallel) and passed to them; the lanes (t0, dt, i, i_stop, S, p, tol, live, quiet, tab,
+    # lane_event), tab the study's terms of time, made by time_table (t0, dt, n, p, out) -> K in the same part
+    "time_table": I8(F8, F8, I8, V1, V1),
     "lane_event": LANE_EVENT,
-    "lanes": I8(F8, F8, I8, I8, V1, V1, V1, I1, I1, types.FunctionType(LANE_EVENT)),
+    "lanes": I8(F8, F8, I8, I8, V1, V1, V1, I1, I1, V1, types.FunctionType(LANE_EVENT)),
     # held steps on one or two contacts (jackbox/engine/flight.py): (t0, dt, i, i_stop, q, qd, p, tol, rest, m,
     # k1, k2, winv, io_f, rec_t, rec_q, rec_qd, io_k, record_every, n_total, qb, qdb, ga, gb, ls, A) -> i; in and
     # out through io_f (the bound on the free gaps) and io_k (the samples written, a step handed over). (A tuple
@@ -167,10 +169,14 @@ SIGNATURES = {
     "ride": I8(F8, F8, I8, I8, V1, V1, V1, V1, I1, I8, I8, I8, V1, V1, V1, V2, V2, I1, I8, I8, V1, V1, V1, V1, V2, V2),
 }
 #: members of an ensemble block, stepped together in the lanes of four vectors (jackbox.engine.lanes): the
-#: terms of time (a shaking force's sine, two calls of libm a step) and the loops' overhead are the block's,
-#: so a wider block pays less of them a member (one thread, member-steps/s: 16 lanes 4.67e7 shaken and 9.5e7
-#: with no impact, 32 lanes 5.11e7 and 1.15e8, 64 lanes 5.12e7 and 1.21e8)
+#: loops' overhead is the block's (and the terms of time were, before TIME_ROWS), so a wider block pays
+#: less of it a member (one thread, member-steps/s: 16 lanes 4.67e7 shaken and 9.5e7 with no impact, 32
+#: lanes 5.11e7 and 1.15e8, 64 lanes 5.12e7 and 1.21e8)
 LANES = 32
+#: the steps of a study whose terms of time (a shaking force's sine: two calls of libm a step, a tenth of
+#: a shaken study's time in lanes) its lanes read from a table made once for all its blocks
+#: (jackbox.engine.lanes.time_table; a megabyte a term at most); later steps compute them, block by block
+TIME_ROWS = 1 << 16
 #: rows of a block's state (each LANES floats, free boxes: six coordinates): q, qd, the trial q and qd
 #: of the step the lanes stopped before, then the bound on every gap at the start and at the trial's end,
 #: the trial step's band, the bound on the gaps' speed at the start and at the trial's end, scratch, and
