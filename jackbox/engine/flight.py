@@ -267,7 +267,7 @@ def solve4(m, f, b1, b2, b3, b4):
     """``x`` for ``A x = b`` with A factored by :func:`factor4` (:func:`jackbox.engine.impact.solve_rows`, the same
     operations in their order); x4 is 0 where m = 3, and where row 4 depends on those before it (g4 = 0: a
     jack flush in a corner), as solve_rows gives it for a finite b4, whose terms are then left out (b4 is not
-    read: a term of 0 moves none of the others)."""
+    read: the terms of an x4 of 0 move none of the others, but for the sign of a zero)."""
     g1, g2, g3, g4, L21, L31, L32, L41, L42, L43 = f
     y2 = b2 - L21 * b1
     y3 = b3 - L31 * b1
