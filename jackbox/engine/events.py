@@ -28,6 +28,8 @@ DEEPEST = 4.0
 # compile one specialisation per value)
 GAP_EVENT = 0           #: a gap plus its level (``ws.c[LEV]``) reaches zero
 FORCE_EVENT = 1         #: a persistent contact's force reaches zero
+#: the probes :func:`locate` (and a lane's ``lanes.locate_lane``) takes at most
+LOCATE_PROBES = 200
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -65,7 +67,7 @@ def locate(model, step, kind, pos, ta, q, qd, tl, fl, tr, fr, guess, p, tol, m, 
     bracket's own left end: a gap that starts the step that close to its
     level (let go there, or leaving) has its event later in the step, and
     taking it at the start made no progress (the step then went to the
-    fallback, three times as often). If 200 iterations do not get there,
+    fallback, three times as often). If LOCATE_PROBES do not get there,
     sets WARN_LOCATE in ``ws.k[FLAGS, 0]``. Returns ``(tl, tr, last)``: last is
     the time of the last probe, whose state is left in ``ws.n[QS]``,
     ``ws.n[QDS]`` (-1: no probe, nothing left there).
@@ -76,7 +78,7 @@ def locate(model, step, kind, pos, ta, q, qd, tl, fl, tr, fr, guess, p, tol, m, 
     ftol = GAP_ROUNDOFF * tol[T_EVENT] if kind == GAP_EVENT else -1.0
     t_start = tl
     done = False
-    for it in range(200):
+    for it in range(LOCATE_PROBES):
         if tr - tl <= ttol or (tl > t_start and fl <= ftol):
             done = True
             break

@@ -41,9 +41,9 @@ import math
 
 from numba import uint64 as _u8
 
-from jackbox.engine.events import (cubic_root as _cubic_root, first_dip as _first_dip, first_hump as _first_hump,
-                                   illinois_keep as _illinois_keep, illinois_probe as _illinois_probe,
-                                   time_tolerance as _time_tolerance)
+from jackbox.engine.events import (LOCATE_PROBES as _LOCATE_PROBES, cubic_root as _cubic_root, first_dip as _first_dip,
+                                   first_hump as _first_hump, illinois_keep as _illinois_keep,
+                                   illinois_probe as _illinois_probe, time_tolerance as _time_tolerance)
 from jackbox.engine.gaps import (cubic_error as _cubic_error, speed_bound as _speed_bound, step_reach as _step_reach)
 from jackbox.engine.integrator import NODES as _NODES
 from jackbox.engine.modes import time_resolution as _time_resolution, within_reach as _within_reach
@@ -205,7 +205,7 @@ def locate_lane(k, ta, tta, q, qd, g0, tl, fl, tr, fr, guess, half, p, tol):
     t_start = tl
     done = False
     qs, vs, gs = q, qd, g0
-    for it in range(200):
+    for it in range(_LOCATE_PROBES):
         if tr - tl <= ttol or (tl > t_start and fl <= ftol):
             done = True
             break
