@@ -232,8 +232,17 @@ def simulate(scene: Scene | str, t_end: float | None = None, dt: float | None = 
     the step in which a gap went negative, first order at impacts).
     progress: show a progress bar (on stderr). log: a callable for status lines.
     """
+    check_progress_log(progress, log)
     run = prepare(scene, t_end, dt, record_every, params, method)
     return run_prepared(run, progress=progress, log=log)
+
+
+def check_progress_log(progress, log) -> None:
+    """Refuse a ``progress`` that is not a bool and a ``log`` that cannot be called with a line (before any work)."""
+    if not isinstance(progress, (bool, np.bool_)):
+        raise SimulationError(f"progress must be True or False, got {progress!r}")
+    if log is not None and not callable(log):
+        raise SimulationError(f"log must be a function that takes a line of text (print, say) or None, got {log!r}")
 
 
 def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:

@@ -488,6 +488,7 @@ def _execute(fn, spec, chunk, threads, scheduler, dask_local, progress, log, ste
     """Run fn over every member in chunks, here or on Dask; concatenate the parts in order."""
     import numba
 
+    api.check_progress_log(progress, log)
     n = spec.n
     steps_per_member = spec.n_steps if steps_per_member is None else steps_per_member
     t_load = time.perf_counter()

@@ -131,6 +131,12 @@ def test_a_run_that_goes_through_a_wall_unseen_says_so(overrides, t_end, tmp_pat
     (lambda: ensemble("drop", 2, t_end=0.05, samples=[0.02, 0.0204]), r"fall on the same step \(t = 0.02 s\)"),
     (lambda: ensemble("drop", 2, t_end=0.05, perturb=["x_jack"]), "perturb must be a dict"),
     (lambda: chaos("drop", 2, t_end=0.05, sweep=[("e", 0.1, 1.0)]), "sweep must be a dict"),
+    # (a log that is not a function failed only where a study compiled something, with a TypeError)
+    (lambda: ensemble("drop", 2, t_end=0.05, log=5), "log must be a function"),
+    (lambda: chaos("drop", 2, t_end=0.05, log="study.log"), "log must be a function"),
+    (lambda: jackbox.simulate("drop", t_end=0.05, log=True), "log must be a function"),
+    (lambda: ensemble("drop", 2, t_end=0.05, progress="yes"), "progress must be True or False"),
+    (lambda: jackbox.simulate("drop", t_end=0.05, progress=None), "progress must be True or False"),
 ])
 def test_a_wrong_type_through_the_api_is_one_clear_error(call, match):
     # (before: ValueError, TypeError or AttributeError from deep inside, or lanes="no" taken as True)
