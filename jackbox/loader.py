@@ -751,17 +751,28 @@ def kernel_for(scene: Scene, log=None, method: str | None = None) -> Kernel:
 
 def _unbound(model_file: Path) -> list[str]:
     """The model's binding parts neither loaded in this process nor cached (those a load would compile)."""
-    out = []
-    for name, text in binding_parts(model_file.read_text()).items():
-        path = part_path(name, text)
-        if str(path) not in _parts and not _cached(name, path):
-            out.append(name)
-    return out
+    return [name for name, path in _part_paths(model_file) if str(path) not in _parts and not _cached(name, path)]
+
+
+#: each model file's binding parts and their paths (by file and cache folder), with the file's identity when
+#: they were made
+_paths_of: dict[str, tuple[tuple[int, int, int], list[tuple[str, Path]]]] = {}
+
+
+def _part_paths(model_file: Path) -> list[tuple[str, Path]]:
+    """(name, path) of each binding part of a generated model; made again only where its file changed (the
+    parts' texts hashed for their paths took half a millisecond of every study and run)."""
+    key, stat = f"{model_file}\0{cache_dir()}", _stat(model_file)      # (a part's path is in the cache folder)
+    kept = _paths_of.get(key)
+    if kept is None or kept[0] != stat:
+        kept = (stat, [(name, part_path(name, text)) for name, text in binding_parts(model_file.read_text()).items()])
+        _paths_of[key] = kept
+    return kept[1]
 
 
 def _cached(part: str, path: Path) -> bool:
     """Whether Numba's cache beside a binding part holds an index for each of its functions."""
-    return all(any(path.parent.glob(f"__pycache__/{path.stem}.{entry}-*.nbi"))
+    return all(engine.cache.has_index(path.parent / "__pycache__", entry, f"{path.stem}.")
                for entry in part_entries()[part])
 
 
@@ -802,7 +813,7 @@ def compile_kernel(kernel: Kernel, method: str | None = None) -> dict:
     if folder is not None and str(folder) not in _verified:
         _verified.add(str(folder))
         _check_manifest(engine.cache.files(), folder / "sums.json", "the engine")
-    cached = bool(engine.cache.files())
+    cached = engine.cache.has_files()
     try:
         result = engine.prepare(names, loops, lazy=LAZY_METHODS.get(method, False))
     except Exception as exc:       # a damaged cache entry that slipped past the manifest

@@ -51,7 +51,7 @@ def _without_lazy_stages(monkeypatch):
     loops = {name: fn for name, fn in engine._loops.items() if name not in engine.LAZY}
     monkeypatch.setattr(engine, "_loops", loops)
     cached = engine.cached
-    monkeypatch.setattr(engine, "cached", lambda name: name not in engine.LAZY and cached(name))
+    monkeypatch.setattr(engine, "cached", lambda name, names=None: name not in engine.LAZY and cached(name, names))
     statuses = []
     entry = engine.entry
     run_exact = entry("run_exact")
@@ -179,7 +179,7 @@ def test_the_parts_are_shared_out_by_cost(monkeypatch):
     monkeypatch.setattr(engine.subprocess, "Popen", Process)
     monkeypatch.setattr(engine, "_loops", {})
     monkeypatch.setattr(engine, "_helpers", {})
-    monkeypatch.setattr(engine, "cached", lambda name: False)
+    monkeypatch.setattr(engine, "cached", lambda name, names=None: False)
     monkeypatch.setenv("JACKBOX_COMPILE_JOBS", "2")
     names, loops = ("run_members", "set_up_members", "fill_tolerances"), ("exact",)
     every = engine.parts(names, loops)
@@ -323,3 +323,37 @@ def test_the_parts_are_shared_out_so_that_the_later_process_finishes_first():
     load = 2.0 + sum(c for n, c in cost.items() if n not in theirs)
     helper = 1.0 + sum(cost[n] for n in theirs)
     assert max(load, helper) < 2.0 + sum(cost.values()) and abs(load - helper) <= max(cost.values())
+
+
+def test_the_cache_index_test_matches_numbas_file_names(tmp_path):
+    """engine.cache.has_index (a listing, not pathlib's glob: a millisecond of every run) finds an index of the
+    function asked for and of no other: ``<module>.<function>-<line>.<python>.nbi``."""
+    has = engine.cache.has_index
+    (tmp_path / "members.run_member_blocks-712.py311.nbi").touch()
+    (tmp_path / "members.run_members-90.py311.nbc").touch()      # machine code without its index
+    assert not has(tmp_path, "run_members") and has(tmp_path, "run_member_blocks")
+    assert not has(tmp_path, "run_member")
+    (tmp_path / "members.run_members-90.py311.nbi").touch()
+    assert has(tmp_path, "run_members") and has(tmp_path, "run_members", "members.")
+    assert not has(tmp_path, "run_members", "loop.") and not has(tmp_path / "none", "run_members")
+    assert has(tmp_path, "run_members", names=["x.run_members-1.py311.nbi"])
+    assert not has(tmp_path, "run_members", names=[])
+
+
+def test_a_models_part_paths_follow_its_file_and_the_cache_folder(tmp_path, monkeypatch):
+    """The binding parts' paths a model file had are kept (hashing their texts took half a millisecond of every
+    run and study), and made again where the file or the cache folder changed."""
+    model = tmp_path / "drop.py"
+    model.write_text((loader.GENERATED_DIR / "drop.py").read_text())
+
+    def fresh():
+        return [(name, loader.part_path(name, text)) for name, text in loader.binding_parts(model.read_text()).items()]
+
+    first = loader._part_paths(model)
+    assert first == fresh() and loader._part_paths(model) is first
+    monkeypatch.setenv("JACKBOX_CACHE_DIR", str(tmp_path / "elsewhere"))
+    moved = loader._part_paths(model)
+    assert moved == fresh() and all(str(path).startswith(str(tmp_path / "elsewhere")) for _, path in moved)
+    model.write_text(model.read_text().replace("entries of an array as a tuple", "entries of an array, a tuple"))
+    edited = loader._part_paths(model)
+    assert edited == fresh() and {path for _, path in edited} != {path for _, path in moved}

@@ -175,10 +175,11 @@ def ready(name: str) -> bool:
     return True
 
 
-def cached(name: str) -> bool:
-    """Whether the cache holds the machine code of the part ``name`` (its index file is there)."""
+def cached(name: str, names: list[str] | None = None) -> bool:
+    """Whether the cache holds the machine code of the part ``name`` (its index file is there); names: the
+    engine's cache folder's listing, where the caller asks of several parts."""
     fn = LOOPS[name][1] if name in LOOPS else name
-    return any(cache.engine_cache_path().glob(f"*.{fn}-*.nbi"))
+    return cache.has_index(cache.engine_cache_path(), fn, names=names)
 
 
 def native_address(fn) -> int:
@@ -198,18 +199,25 @@ def native_address(fn) -> int:
         return 0
 
 
-def parts(names, loops=(), lazy: bool = False) -> list[str]:
+def parts(names, loops=(), lazy: bool = False, listing: list[str] | None = None) -> list[str]:
     """What :func:`prepare` would compile or load for these entry points and loops, in order.
 
     lazy: leave out the stages of LAZY that are not cached (the exact loop runs without them);
-    RESUME: those not in memory, cached or not (see :func:`table`).
+    RESUME: those not in memory, cached or not (see :func:`table`). listing: the engine's cache folder's
+    (:func:`cache.listing`), if the caller has it.
     """
     out = []
     for name in loops:      # what each needs first, then itself
         for need in (*LOOPS[name][3], name):
-            if need not in out and need not in _loops and not (
-                    lazy and need in LAZY and (lazy == RESUME or not cached(need))):
-                out.append(need)
+            if need in out or need in _loops:
+                continue
+            if lazy and need in LAZY and lazy != RESUME:
+                listing = cache.listing(cache.engine_cache_path()) if listing is None else listing
+                if not cached(need, listing):
+                    continue
+            elif lazy and need in LAZY:
+                continue
+            out.append(need)
     return out + [name for name in names if name not in out and not _dispatcher(name).signatures]
 
 
@@ -230,7 +238,8 @@ def start(names, loops=(), lazy: bool = False, busy: float = 0.0, costs: dict | 
     """
     if numba.config.DISABLE_JIT or _jobs() < 2:
         return []
-    todo = [name for name in parts(names, loops, lazy) if name not in _helpers and not cached(name)]
+    listing = cache.listing(cache.engine_cache_path())
+    todo = [name for name in parts(names, loops, lazy, listing) if name not in _helpers and not cached(name, listing)]
     if not todo:
         return []
     costs = costs or {}

@@ -258,3 +258,29 @@ def files() -> list[Path]:
     """The engine's cache files (index and machine code) in its folder."""
     path = engine_cache_path()
     return sorted(path.glob("*.nb[ic]")) if path.is_dir() else []
+
+
+def listing(folder: Path) -> list[str]:
+    """The names in a folder (none if it cannot be read)."""
+    try:
+        return os.listdir(folder)
+    except OSError:
+        return []
+
+
+def has_index(folder: Path, fn: str, stem: str = "", names: list[str] | None = None) -> bool:
+    """Whether Numba's cache folder holds an index of the function fn (a file ``<stem>*.<fn>-*.nbi``).
+
+    names: the folder's :func:`listing`, where the caller asks of several
+    functions. (pathlib's glob of the same pattern matched a regular
+    expression against each of some 200 names, each time: the ten asked
+    before each study or run took a millisecond.)
+    """
+    mid = f".{fn}-"
+    return any(n.endswith(".nbi") and n.startswith(stem) and mid in n
+               for n in (listing(folder) if names is None else names))
+
+
+def has_files() -> bool:
+    """Whether the engine's folder holds any cache file (:func:`files` sorts some 200 paths: a millisecond)."""
+    return any(n.endswith((".nbi", ".nbc")) for n in listing(engine_cache_path()))
