@@ -113,6 +113,21 @@ def test_contact_side_by_side_with_another_checkout(tmp_path):
     assert bad.returncode == 2 and "not a jackbox checkout" in bad.stderr and "Traceback" not in bad.stderr
 
 
+def test_overhead_quick_mode_side_by_side(tmp_path):
+    """benchmarks/overhead.py --quick --against (this checkout again): each call's figure for both, in the files;
+    a folder that is not a checkout is refused in one line."""
+    script = str(ROOT / "benchmarks" / "overhead.py")
+    subprocess.run([sys.executable, script, "--quick", "--out", str(tmp_path), "--against", str(ROOT)],
+                   check=True, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    result = json.loads((tmp_path / "overhead.json").read_text())
+    assert set(result["this"]) == set(result["against"]["ms"]) == {"simulate", "study_32", "study_2000"}
+    assert all(_positive(v) for v in [*result["this"].values(), *result["against"]["ms"].values()])
+    assert "| this checkout, ms | other checkout, ms | this / other |" in (tmp_path / "overhead.md").read_text()
+    bad = subprocess.run([sys.executable, script, "--quick", "--out", str(tmp_path), "--against", str(tmp_path)],
+                         cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "not a jackbox checkout" in bad.stderr and "Traceback" not in bad.stderr
+
+
 def test_throughput_resting_row():
     # jackbox bench's rows for a step with held contacts against a free one: the settled
     # plastic drop, and the jack riding the shaken box's floor. Every figure measured, and
