@@ -772,7 +772,7 @@ def _part_paths(model_file: Path) -> list[tuple[str, Path]]:
 
 def _cached(part: str, path: Path) -> bool:
     """Whether Numba's cache beside a binding part holds an index for each of its functions."""
-    return all(engine.cache.has_index(path.parent / "__pycache__", entry, f"{path.stem}.")
+    return all(engine.cache.has_index(path.parent / "__pycache__", entry, path.stem)
                for entry in part_entries()[part])
 
 

@@ -334,8 +334,10 @@ def test_the_cache_index_test_matches_numbas_file_names(tmp_path):
     assert not has(tmp_path, "run_members") and has(tmp_path, "run_member_blocks")
     assert not has(tmp_path, "run_member")
     (tmp_path / "members.run_members-90.py311.nbi").touch()
-    assert has(tmp_path, "run_members") and has(tmp_path, "run_members", "members.")
-    assert not has(tmp_path, "run_members", "loop.") and not has(tmp_path / "none", "run_members")
+    assert has(tmp_path, "run_members") and has(tmp_path, "run_members", "members")
+    assert not has(tmp_path, "run_members", "loop") and not has(tmp_path / "none", "run_members")
+    (tmp_path / "lanes_ab12.calm.lanes-3.py311.nbi").touch()     # (no function's own index)
+    assert not has(tmp_path, "lanes", "lanes_ab12")
     assert has(tmp_path, "run_members", names=["x.run_members-1.py311.nbi"])
     assert not has(tmp_path, "run_members", names=[])
 

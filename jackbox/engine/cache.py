@@ -268,17 +268,21 @@ def listing(folder: Path) -> list[str]:
         return []
 
 
-def has_index(folder: Path, fn: str, stem: str = "", names: list[str] | None = None) -> bool:
-    """Whether Numba's cache folder holds an index of the function fn (a file ``<stem>*.<fn>-*.nbi``).
+def has_index(folder: Path, fn: str, module: str | None = None, names: list[str] | None = None) -> bool:
+    """Whether Numba's cache folder holds an index of the function fn: a file ``<module>.<fn>-*.nbi`` (of any
+    module where None).
 
     names: the folder's :func:`listing`, where the caller asks of several
     functions. (pathlib's glob of the same pattern matched a regular
     expression against each of some 200 names, each time: the ten asked
     before each study or run took a millisecond.)
     """
+    names = listing(folder) if names is None else names
+    if module is not None:
+        first = f"{module}.{fn}-"
+        return any(n.endswith(".nbi") and n.startswith(first) for n in names)
     mid = f".{fn}-"
-    return any(n.endswith(".nbi") and n.startswith(stem) and mid in n
-               for n in (listing(folder) if names is None else names))
+    return any(n.endswith(".nbi") and mid in n for n in names)
 
 
 def has_files() -> bool:
