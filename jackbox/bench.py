@@ -53,7 +53,7 @@ import jackbox
 
 from . import api, loader
 from .errors import JackboxError
-from .fileio import write_atomic
+from .fileio import check_writable, write_atomic
 from .scene import builtin_scenes, load_scene
 
 ROOT = Path(jackbox.__file__).resolve().parent.parent
@@ -126,7 +126,10 @@ def main(argv: list[str] | None = None) -> int:
 
 def run(args) -> int:
     """Measure everything, print the tables, write the files; 1 when an invariant failed."""
-    if getattr(args, "compile", False):
+    compiling = getattr(args, "compile", False)
+    # (refused before minutes of measuring, not when the figures are written)
+    check_writable(args.out if args.out is not None else default_out(args.quick and not compiling))
+    if compiling:
         from . import compilebench
 
         argv = ["--repeat", str(args.repeat if "--repeat" in sys.argv else 1)]

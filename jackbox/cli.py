@@ -16,7 +16,6 @@ import math
 import os
 import signal
 import sys
-import tempfile
 import threading
 import time
 import warnings
@@ -24,6 +23,7 @@ from pathlib import Path
 
 from . import __version__
 from .errors import CacheWarning, JackboxError, RunStoppedError, SolverWarning
+from .fileio import check_writable
 from .process import end
 
 EPILOG = """\
@@ -478,22 +478,8 @@ def _out_dir(args, scene) -> Path:
     out_dir = args.out if args.out is not None else Path("runs") / scene.name
     if out_dir.exists() and not out_dir.is_dir():
         raise JackboxError(f"--out {out_dir}: exists and is not a folder")
-    _check_writable(out_dir)
+    check_writable(out_dir)
     return out_dir
-
-
-def _check_writable(path: Path) -> None:
-    """Refuse, before any work, an output place that cannot be written: the nearest
-    existing folder on its path must be a writable folder."""
-    existing = path.absolute()
-    while not existing.exists():
-        existing = existing.parent
-    if not existing.is_dir():
-        raise JackboxError(f"--out {path}: {existing} is a file, not a folder")
-    try:     # (a permission check alone says yes to root on a read-only mount or in /proc)
-        tempfile.TemporaryFile(dir=existing).close()
-    except OSError as exc:
-        raise JackboxError(f"--out {path}: {existing} cannot be written ({exc.strerror or exc})") from None
 
 
 def _out_file(out: Path | None, source: Path, run_name: str, suffix: str) -> Path:
@@ -503,7 +489,7 @@ def _out_file(out: Path | None, source: Path, run_name: str, suffix: str) -> Pat
         source.with_name(run_name) if source.stem == "trajectory" else source.with_suffix(suffix))
     if path.is_dir():
         raise JackboxError(f"--out {path}: is a folder (give a file name)")
-    _check_writable(path.parent)
+    check_writable(path.parent)
     return path
 
 

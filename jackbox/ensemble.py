@@ -489,6 +489,15 @@ def _execute(fn, spec, chunk, threads, scheduler, dask_local, progress, log, ste
     import numba
 
     api.check_progress_log(progress, log)
+    if threads is not None:     # (before anything is compiled: a typo must not cost a first compile)
+        whole = not isinstance(threads, bool) and isinstance(threads, (int, np.integer)) and threads >= 1
+        if scheduler or dask_local:
+            if not whole:
+                raise SimulationError(f"threads must be a whole number of threads per Dask worker (1 or more), "
+                                      f"got {threads!r}")
+        elif not (whole and threads <= numba.config.NUMBA_NUM_THREADS):
+            raise SimulationError(f"threads must be a whole number from 1 to {numba.config.NUMBA_NUM_THREADS}, "
+                                  f"got {threads!r}")
     n = spec.n
     steps_per_member = spec.n_steps if steps_per_member is None else steps_per_member
     t_load = time.perf_counter()
@@ -524,10 +533,6 @@ def _execute(fn, spec, chunk, threads, scheduler, dask_local, progress, log, ste
     else:
         old = numba.get_num_threads()
         if threads is not None:
-            if (isinstance(threads, bool) or not isinstance(threads, (int, np.integer))
-                    or not 1 <= threads <= numba.config.NUMBA_NUM_THREADS):
-                raise SimulationError(f"threads must be a whole number from 1 to "
-                                      f"{numba.config.NUMBA_NUM_THREADS}, got {threads!r}")
             numba.set_num_threads(threads)
         n_threads = numba.get_num_threads()
         bar = progress_bar(n, progress, "member", kind)

@@ -300,3 +300,18 @@ def test_ensemble_members_that_went_through_a_wall_unseen_say_so():
                              np.full(40, P["L"]), np.full(40, P["w_box"]), True)
     one = np.array([contact_gaps(q, scene.points, P["L"], P["w_box"], True) for q in Q])
     assert np.array_equal(many, one)
+
+
+@pytest.mark.parametrize("kw", [{"threads": 9}, {"threads": 0}, {"threads": "2"}, {"dask_local": 1, "threads": 0},
+                                {"log": 5}])
+def test_a_studys_bad_argument_is_refused_before_anything_loads_or_compiles(monkeypatch, kw):
+    """(a wrong thread count was refused only after the engine's loop had compiled: a first compile on a new
+    machine, a quarter of a minute, for a typo)"""
+    import jackbox.ensemble as studies
+
+    def loaded(*args, **kwargs):
+        raise AssertionError("the kernel was looked up before the arguments were checked")
+
+    monkeypatch.setattr(studies, "_kernel", loaded)
+    with pytest.raises(SimulationError, match="threads must be|log must be"):
+        studies.ensemble("drop", 2, t_end=0.05, **kw)

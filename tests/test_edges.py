@@ -57,6 +57,22 @@ def test_an_out_that_cannot_be_written_is_refused_before_any_work(tmp_path, caps
     assert line == f"jackbox: error: --out {blocker / 'out'}: {blocker} is a file, not a folder"
 
 
+@pytest.mark.parametrize("flags", [[], ["--quick"], ["--compile"]], ids=["full", "quick", "compile"])
+def test_a_bench_out_that_cannot_be_written_is_refused_before_measuring(tmp_path, capsys, monkeypatch, flags):
+    """(it was found when the figures were written, after minutes of measuring)"""
+    import jackbox.bench
+    import jackbox.compilebench
+
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    monkeypatch.setattr(jackbox.bench, "bench_scene", _no_work)
+    monkeypatch.setattr(jackbox.compilebench, "main", _no_work)
+    status, out, err = run_cli(capsys, "bench", *flags, "--out", str(blocker / "out"))
+    assert status == 2, err
+    (line,) = err.strip().splitlines()
+    assert line == f"jackbox: error: --out {blocker / 'out'}: {blocker} is a file, not a folder"
+
+
 @pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux's /proc")
 def test_an_out_where_nothing_can_be_made_is_refused_even_for_root(capsys, monkeypatch):
     """/proc: its permission bits let root write, yet no file can be made there."""
