@@ -379,5 +379,6 @@ def test_a_parts_cache_files_are_found_by_one_listing_of_their_folder(tmp_path, 
     listed = []
     listing = engine.cache.listing
     monkeypatch.setattr(engine.cache, "listing", lambda folder: listed.append(folder) or listing(folder))
+    monkeypatch.setattr(loader, "_parts", {})      # (as in a new process: no part loaded yet, each one asked)
     loader._unbound(loader.GENERATED_DIR / "drop.py")
     assert len(listed) == 1, listed                 # every part of the model, one listing of their folder
