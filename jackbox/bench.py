@@ -127,14 +127,14 @@ def main(argv: list[str] | None = None) -> int:
 def run(args) -> int:
     """Measure everything, print the tables, write the files; 1 when an invariant failed."""
     compiling = getattr(args, "compile", False)
-    # (refused before minutes of measuring, not when the figures are written)
-    check_writable(args.out if args.out is not None else default_out(args.quick and not compiling))
+    out = args.out if args.out is not None else default_out(args.quick and not compiling)
+    check_writable(out)         # (refused before minutes of measuring, not when the figures are written)
     if compiling:
         from . import compilebench
 
         argv = ["--repeat", str(args.repeat if "--repeat" in sys.argv else 1)]
         argv += ["--against", str(args.against)] if args.against else []
-        argv += ["--out", str(args.out if args.out is not None else default_out(False))]
+        argv += ["--out", str(out)]
         return compilebench.main(argv)
     if args.against is not None:
         raise JackboxError("--against goes with --compile")
@@ -150,7 +150,6 @@ def run(args) -> int:
     if args.repeat < 1:
         raise JackboxError(f"--repeat must be at least 1, got {args.repeat}")
     size = SIZES["quick" if args.quick else "full"]
-    out = args.out if args.out is not None else default_out(args.quick)
     t_start = time.perf_counter()
     load_start = _load_average()
     rows = [bench_scene(name, args.repeat, size, cold=not args.no_cold) for name in scenes]

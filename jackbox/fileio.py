@@ -75,15 +75,15 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def check_writable(path: Path, flag: str = "--out") -> None:
-    """Refuse, before any work, an output place that cannot be written: the nearest
-    existing folder on its path must be a writable folder (flag: how the user named it)."""
+def check_writable(path: Path) -> None:
+    """Refuse, before any work, an ``--out`` that cannot be written: the nearest
+    existing folder on its path must be a writable folder."""
     existing = Path(path).absolute()
     while not existing.exists():
         existing = existing.parent
     if not existing.is_dir():
-        raise JackboxError(f"{flag} {path}: {existing} is a file, not a folder")
+        raise JackboxError(f"--out {path}: {existing} is a file, not a folder")
     try:     # (a permission check alone says yes to root on a read-only mount or in /proc)
         tempfile.TemporaryFile(dir=existing).close()
     except OSError as exc:
-        raise JackboxError(f"{flag} {path}: {existing} cannot be written ({exc.strerror or exc})") from None
+        raise JackboxError(f"--out {path}: {existing} cannot be written ({exc.strerror or exc})") from None

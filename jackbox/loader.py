@@ -781,7 +781,7 @@ def _part_paths(model_file: Path) -> list[tuple[str, Path]]:
 def _cached(part: str, path: Path, index: dict | None = None) -> bool:
     """Whether Numba's cache beside a binding part holds an index for each of its functions (index: see
     :func:`_numba_files`)."""
-    names = [f.name for f in _numba_files(path, index)]
+    names = _part_files(path, index)
     return all(engine.cache.has_index(path.parent / "__pycache__", entry, path.stem, names)
                for entry in part_entries()[part])
 
@@ -868,9 +868,13 @@ def _loops_of(method: str) -> tuple[str, ...]:
 def _numba_files(path: Path, index: dict | None = None) -> list[Path]:
     """Numba's cache files (index and machine code) beside a binding module; index: its folder's
     :func:`_pycache_index`, where the caller has one (else the folder is listed now)."""
-    folder = path.parent / "__pycache__"
-    index = _pycache_index(folder) if index is None else index
-    return sorted(folder / name for name in index.get(path.stem, ()))
+    return sorted(path.parent / "__pycache__" / name for name in _part_files(path, index))
+
+
+def _part_files(path: Path, index: dict | None = None) -> list[str]:
+    """The names of :func:`_numba_files`."""
+    index = _pycache_index(path.parent / "__pycache__") if index is None else index
+    return index.get(path.stem, [])
 
 
 def _pycache_index(folder: Path) -> dict[str, list[str]]:

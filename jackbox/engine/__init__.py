@@ -211,12 +211,12 @@ def parts(names, loops=(), lazy: bool = False, listing: list[str] | None = None)
         for need in (*LOOPS[name][3], name):
             if need in out or need in _loops:
                 continue
-            if lazy and need in LAZY and lazy != RESUME:
+            if lazy and need in LAZY:
+                if lazy == RESUME:
+                    continue
                 listing = cache.listing(cache.engine_cache_path()) if listing is None else listing
                 if not cached(need, listing):
                     continue
-            elif lazy and need in LAZY:
-                continue
             out.append(need)
     return out + [name for name in names if name not in out and not _dispatcher(name).signatures]
 
