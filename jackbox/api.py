@@ -21,7 +21,7 @@ import numpy as np
 
 from . import __version__, loader
 from . import engine as K
-from .engine.tolerances import EVENT_TOL, FLIGHT_TOL, GAP_TOL, REST_TOL  # noqa: F401  (relative to L; FLIGHT_TOL to dt)
+from .engine.tolerances import EVENT_TOL, FLIGHT_TOL, GAP_TOL, REST_TOL, ZENO_TOL  # noqa: F401  (relative to L; FLIGHT_TOL, ZENO_TOL to dt)
 from .errors import NonFiniteStateError, RunStoppedError, SimulationError, SolverWarning
 from .progress import progress_bar
 from .scene import Scene, contact_gaps, contact_gaps_many, is_number, jack_points, load_scene, param_array
@@ -314,9 +314,13 @@ def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
         entered = ev_k[(ev_kind == K.FALLBACK) & (ev_k >= 1)]
         extra["fallback_reasons"] = [HANDOFF_REASONS.get(int(code), f"code {int(code)}") for code in entered]
         extra["solver_warnings"] = report_warnings(run, ev_t[ev_kind == K.WARNING], ev_k[ev_kind == K.WARNING])
+    # a rest is logged where the Zeno cascade it ended would have come to rest, up to ZENO_TOL dt past the
+    # update that held it (jackbox.engine.modes.update_contacts): in time order, none past the run's end
+    mode_t = np.minimum(ev_t[mode], run.n_steps * run.dt)
+    order = np.argsort(mode_t, kind="stable")
     return finish(run, rec_t[:n_rec], rec_q[:n_rec], rec_qd[:n_rec], rec_e[:n_rec],
                   ev_t[hit].copy(), ev_k[hit].copy(), extra,
-                  ev_t[mode].copy(), ev_k[mode].copy(), ev_kind[mode].copy(), fallback)
+                  mode_t[order], ev_k[mode][order], ev_kind[mode][order], fallback)
 
 
 #: the deepest any gap of an exact run may be at a recorded sample, as a fraction of the box's half-width L:

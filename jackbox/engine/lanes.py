@@ -49,9 +49,9 @@ from jackbox.engine.integrator import NODES as _NODES
 from jackbox.engine.modes import time_resolution as _time_resolution, within_reach as _within_reach
 from jackbox.engine.records import (BOUND_ROW as _BOUND, FIRST_ROW as _FIRST, GAP_ROUNDOFF as _GAP_ROUNDOFF,
                                     IMPULSE_ROW as _IMPULSES, LANES as _W, SCRATCH_ROW as _SCRATCH,
-                                    SPEED_ROW as _SPEED, T_AREST as _T_AREST_L, T_EVENT as _T_EVENT_L,
+                                    SPEED_ROW as _SPEED, T_EVENT as _T_EVENT_L,
                                     T_GAP as _T_GAP_L, T_VREST as _T_VREST_L)
-from jackbox.engine.tolerances import FLIGHT_TOL as _FLIGHT_TOL
+from jackbox.engine.tolerances import rest_speed as _rest_speed
 
 # sin and cos: Cody-Waite reduction by pi/2 (its first part has 33 bits, so k * _PIO2_HI is exact for
 # |k| < 2^20, angles up to 1.6e6 rad) and the classical minimax polynomials on [-pi/4, pi/4]
@@ -320,7 +320,6 @@ def impact_lane(t, q, qd, p, tol, w, vrest):
     a = accel_s(t, q, qd, p, accel_time_s(t, p))
     half = 0.5 * tol[_T_EVENT_L]
     tiny = 1e-3 * tol[_T_VREST_L]
-    flight = _FLIGHT_TOL * math.sqrt(tol[_T_EVENT_L] / tol[_T_AREST_L])
     hits = 0
     kh = -1
     rh = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -331,7 +330,7 @@ def impact_lane(t, q, qd, p, tol, w, vrest):
         s = row_dot_s(r, a)
         rise = max(-half - g[k], 0.0) + tol[_T_EVENT_L]
         press = max(-s, 0.0)
-        vrest[k] = max(tol[_T_VREST_L], math.sqrt(2.0 * rise * press), 0.5 * flight * press)
+        vrest[k] = _rest_speed(tol, rise, press, p[E_SLOT] if k < N_WALL_CONTACT else p[E_GROUND_SLOT])
         vk = r[8]
         if vk <= tiny:
             hits += 1

@@ -20,15 +20,16 @@ persistent, the others are released. :func:`project_rest` removes RK4's drift
 off the held contacts after each step.
 """
 
+
 import math
 
 import numpy as np
 from numba import njit
 
 from .impact import contact_matrix, factor_rows, solve_lcp, solve_rows
-from .records import (ACC, CAND, CARRIES, FLAGS, GS, HIT, IMPULSE, LAM, NEAR, NEWREST, RELEASE, REST, RHS, RIDX, RINV,
-                      ROW_BIAS, ROW_GAP, ROW_RATE, SLOW, SLOW_AT, STILL, T_AREST, T_EVENT, T_GAP, T_VREST, VB, VREST, WINV)
-from .tolerances import shortest_flight
+from .records import (ACC, BOUNCE, CAND, CARRIES, FLAGS, GS, HIT, IMPULSE, LAM, NEAR, NEWREST, PRESS, RELEASE, REST,
+                      RHS, RIDX, RINV, ROW_BIAS, ROW_GAP, ROW_RATE, SLOW, SLOW_AT, STILL, T_AREST, T_EVENT, T_GAP, T_VREST, VB, VREST, WINV)
+from .tolerances import ZENO_TOL, rest_speed, zeno_rest_ahead
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -261,6 +262,19 @@ def log_event(t, k, kind, log, n_ev):
 
 
 @njit(cache=True, no_cpython_wrapper=True)
+def unlog_rest_ahead(t, k, tol, log, n_ev):
+    """Contact k is released at t: its rest, where logged ahead of t (:func:`update_contacts`), is moved to t
+    (the cascade it ended did not finish). Only the entries of the last ZENO_TOL dt can lie ahead."""
+    since = t - ZENO_TOL * math.sqrt(tol[T_EVENT] / tol[T_AREST])
+    j = min(n_ev, log.t.shape[0]) - 1
+    while j >= 0 and log.t[j] >= since:
+        if log.k[j] == k and log.kind[j] == REST:
+            log.t[j] = min(log.t[j], t)
+            return
+        j -= 1
+
+
+@njit(cache=True, no_cpython_wrapper=True)
 def near_rows(model, t, q, qd, p, near, m, jac, v):
     """The rows of the m contacts ``near[:m]`` into jac, and their rates into v.
 
@@ -342,7 +356,9 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
     # rebounds at 1.7e-7 L/s against 37 L/s^2: back within 1e-8 s, 4e-16 L high; or leaves at
     # 2e-6 L/s from 2.7e-12 L inside the wall, against 56 L/s^2: 3e-14 L high). Such a
     # contact is at rest: its impact is plastic, and the accelerations' LCP decides whether
-    # it is held. So is a contact whose flight would last less than FLIGHT_TOL dt. (An elastic
+    # it is held. So is a contact whose flight would last less than FLIGHT_TOL dt, or whose Zeno cascade
+    # would be over within ZENO_TOL dt (tolerances.rest_speed; its rest is logged where the cascade
+    # would have ended: tolerances.zeno_rest_ahead, unlog_rest_ahead). (An elastic
     # contact, e = 1, bounces forever: with a rise of GAP_ROUNDOFF T_EVENT, a box corner
     # pivoting on the ground bounced 3e-13 L high every 0.49 us, 20000 events in 7 ms, in five
     # of the random drops that failed the event budget. The acceleration here is the free
@@ -352,17 +368,17 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
     # dense steps: records.DENSE_SCORE.)
     a = ws.n[ACC]
     model.accel(t, q, qd, p, a)
-    vrest = ws.c[VREST]
+    vrest, pressed, bounce = ws.c[VREST], ws.c[PRESS], ws.c[BOUNCE]
     half = 0.5 * tol[T_EVENT]
-    flight = shortest_flight(tol)
     for i in range(m):
         k = near[i]
         s = jac[k, n + ROW_BIAS]
         for d in range(n):
             s += jac[k, d] * a[d]
         rise = max(-half - g[k], 0.0) + tol[T_EVENT]
-        press = max(-s, 0.0)
-        vrest[k] = max(tol[T_VREST], math.sqrt(2.0 * rise * press), 0.5 * flight * press)
+        pressed[k] = max(-s, 0.0)
+        bounce[k] = 0.0
+        vrest[k] = rest_speed(tol, rise, pressed[k], p[model.e_slot] if k < model.n_wall else p[model.e_ground_slot])
     # The impact: contacts that approach or are closed and still. A receding
     # contact takes no part: an impulse there would push it apart while the
     # others' impulses slow it, which adds energy (it may hit again later).
@@ -385,6 +401,8 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
             k = hit[i]
             e = p[model.e_slot] if k < model.n_wall else p[model.e_ground_slot]
             b[i] = v[k] + (e * v[k] if v[k] < -vrest[k] else 0.0)
+            if -vrest[k] <= v[k] < -tiny:       # at rest: the bounce it would have left with
+                bounce[k] = -e * v[k]
         contact_matrix(jac, winv, hit, np.int64(nh), A)
         solve_lcp(A, b, np.int64(nh), lam, ws)
         for d in range(n):
@@ -402,6 +420,7 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
     for i in range(m):
         if abs(v[near[i]]) < vrest[near[i]]:
             cand[c] = near[i]
+            bounce[near[i]] = max(bounce[near[i]], v[near[i]])
             c += 1
     if approaching:
         model.accel(t, q, qd, p, a)
@@ -430,8 +449,11 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
     ws.k[FLAGS, 1] = 0
     for k in range(C):
         if newrest[k] and not rest[k]:
-            n_ev = log_event(t, k, np.int64(REST), log, n_ev)
+            # logged where the Zeno cascade that its rest ends would have come to rest (it is held from t)
+            e = p[model.e_slot] if k < model.n_wall else p[model.e_ground_slot]
+            n_ev = log_event(t + zeno_rest_ahead(tol, bounce[k], pressed[k], e), k, np.int64(REST), log, n_ev)
         elif rest[k] and not newrest[k]:
+            unlog_rest_ahead(t, k, tol, log, n_ev)
             n_ev = log_event(t, k, np.int64(RELEASE), log, n_ev)
         rest[k] = newrest[k]
     m = rest_index(rest, C, ws.k[RIDX])

@@ -242,10 +242,12 @@ ROW_EXTRA = 3
 # contact in a step (gap + level = 0 at its event), a solver's unknowns, the
 # reciprocals of a factorization's diagonal, the persistent contacts' forces at
 # the integrator's four stages (LS + stage), then per free contact in a step the time from which its
-# event is at the held level and its level before that (events.first_crossing: a deep start)
+# event is at the held level and its level before that (events.first_crossing: a deep start), then per
+# near contact at a contact update how hard it is pressed and the speed it would bounce away with
+# (modes.update_contacts: where a Zeno cascade it ends would have come to rest)
 GA, GB, GS, VA, VB, VREST, RHS, LAM, VT, LR, LX, R, LAMA, LAMB, LEV, Y, RINV, LS = range(18)
-HUMP, DLEV = LS + 4, LS + 5
-SC = LS + 6
+HUMP, DLEV, PRESS, BOUNCE = LS + 4, LS + 5, LS + 6, LS + 7
+SC = LS + 8
 # rows of Scratch.n, (SN, n_dof) floats: the trial state at a step's end, the
 # state at a trial time, diag(M^-1), accelerations, the state at a step's start, the model's ride's
 # float in and out (slot 0: the bound on the free gaps)
