@@ -21,15 +21,13 @@ off the held contacts after each step.
 """
 
 
-import math
-
 import numpy as np
 from numba import njit
 
 from .impact import contact_matrix, factor_rows, solve_lcp, solve_rows
 from .records import (ACC, BOUNCE, CAND, CARRIES, FLAGS, GS, HIT, IMPULSE, LAM, NEAR, NEWREST, PRESS, RELEASE, REST,
                       RHS, RIDX, RINV, ROW_BIAS, ROW_GAP, ROW_RATE, SLOW, SLOW_AT, STILL, T_AREST, T_EVENT, T_GAP, T_VREST, VB, VREST, WINV)
-from .tolerances import ZENO_TOL, rest_speed, zeno_rest_ahead
+from .tolerances import ZENO_TOL, rest_speed, step_of, zeno_rest_ahead
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -261,11 +259,17 @@ def log_event(t, k, kind, log, n_ev):
     return n_ev + 1
 
 
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
+def restitution(model, p, k):
+    """Contact k's coefficient of restitution: the walls' e or the ground's."""
+    return p[model.e_slot] if k < model.n_wall else p[model.e_ground_slot]
+
+
 @njit(cache=True, no_cpython_wrapper=True)
 def unlog_rest_ahead(t, k, tol, log, n_ev):
     """Contact k is released at t: its rest, where logged ahead of t (:func:`update_contacts`), is moved to t
     (the cascade it ended did not finish). Only the entries of the last ZENO_TOL dt can lie ahead."""
-    since = t - ZENO_TOL * math.sqrt(tol[T_EVENT] / tol[T_AREST])
+    since = t - ZENO_TOL * step_of(tol)
     j = min(n_ev, log.t.shape[0]) - 1
     while j >= 0 and log.t[j] >= since:
         if log.k[j] == k and log.kind[j] == REST:
@@ -378,7 +382,7 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
         rise = max(-half - g[k], 0.0) + tol[T_EVENT]
         pressed[k] = max(-s, 0.0)
         bounce[k] = 0.0
-        vrest[k] = rest_speed(tol, rise, pressed[k], p[model.e_slot] if k < model.n_wall else p[model.e_ground_slot])
+        vrest[k] = rest_speed(tol, rise, pressed[k], restitution(model, p, k))
     # The impact: contacts that approach or are closed and still. A receding
     # contact takes no part: an impulse there would push it apart while the
     # others' impulses slow it, which adds energy (it may hit again later).
@@ -399,7 +403,7 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
         b, lam = ws.c[RHS], ws.c[LAM]
         for i in range(nh):
             k = hit[i]
-            e = p[model.e_slot] if k < model.n_wall else p[model.e_ground_slot]
+            e = restitution(model, p, k)
             b[i] = v[k] + (e * v[k] if v[k] < -vrest[k] else 0.0)
             if -vrest[k] <= v[k] < -tiny:       # at rest: the bounce it would have left with
                 bounce[k] = -e * v[k]
@@ -450,7 +454,7 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
     for k in range(C):
         if newrest[k] and not rest[k]:
             # logged where the Zeno cascade that its rest ends would have come to rest (it is held from t)
-            e = p[model.e_slot] if k < model.n_wall else p[model.e_ground_slot]
+            e = restitution(model, p, k)
             n_ev = log_event(t + zeno_rest_ahead(tol, bounce[k], pressed[k], e), k, np.int64(REST), log, n_ev)
         elif rest[k] and not newrest[k]:
             unlog_rest_ahead(t, k, tol, log, n_ev)

@@ -88,6 +88,12 @@ def set_tolerances(model, p, jack_factor, n_points, dt, boxv, out):
 
 
 @njit(cache=True, no_cpython_wrapper=True, inline="always")
+def step_of(tol):
+    """The step dt, read from a tolerance row (its T_AREST is T_EVENT / dt^2)."""
+    return math.sqrt(tol[T_EVENT] / tol[T_AREST])
+
+
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
 def rest_speed(tol, rise, press, e):
     """The rest speed of a contact with restitution e, pressed at ``press`` (minus its gap acceleration, >= 0).
 
@@ -104,8 +110,7 @@ def rest_speed(tol, rise, press, e):
     ended differs by a second-order term (measured on drop at e = 0.6: 1e-13 L,
     where a step's own error is 1e-11).
     """
-    dt = math.sqrt(tol[T_EVENT] / tol[T_AREST])
-    flight = dt * max(FLIGHT_TOL, ZENO_TOL * (1.0 - e))
+    flight = step_of(tol) * max(FLIGHT_TOL, ZENO_TOL * (1.0 - e))
     return max(tol[T_VREST], math.sqrt(2.0 * rise * press), 0.5 * flight * press)
 
 
@@ -117,7 +122,7 @@ def zeno_rest_ahead(tol, bounce, press, e):
     has no accumulation point, nor has a contact pressed by nothing)."""
     if not (e < 1.0 and press > 0.0 and bounce > 0.0):
         return 0.0
-    return min(2.0 * bounce / (press * (1.0 - e)), ZENO_TOL * math.sqrt(tol[T_EVENT] / tol[T_AREST]))
+    return min(2.0 * bounce / (press * (1.0 - e)), ZENO_TOL * step_of(tol))
 
 
 @njit(cache=True)
