@@ -24,7 +24,7 @@ off the held contacts after each step.
 import numpy as np
 from numba import njit
 
-from .impact import contact_matrix, factor_rows, solve_lcp, solve_rows
+from .impact import PGS_SWEEPS, contact_matrix, factor_rows, lcp, solve_lcp, solve_rows
 from .records import (ACC, BOUNCE, CAND, CARRIES, FLAGS, GS, HIT, IMPULSE, LAM, NEAR, NEWREST, PRESS, RELEASE, REST,
                       RHS, RIDX, RINV, ROW_BIAS, ROW_GAP, ROW_RATE, SLOW, SLOW_AT, STILL, T_AREST, T_EVENT, T_GAP, T_VREST, VB, VREST, WINV)
 from .tolerances import ZENO_TOL, rest_speed, step_of, zeno_rest_ahead
@@ -309,6 +309,43 @@ def within_reach(g, v, dt_res, tol):
 
 
 @njit(cache=True, no_cpython_wrapper=True)
+def held_press(jac, winv, near, m, rest, pressed, ws):
+    """Each free contact's press under the forces of the held ones, where ``pressed`` holds minus the near
+    contacts' free gap accelerations (``near[:m]``, rows in jac).
+
+    The held contacts' forces solve the accelerations' LCP over the held rows (forces are not unique on a
+    redundant set, the accelerations they give are); a free contact's gap acceleration is its free one plus
+    ``J_k M^-1 J_H^T lam``. A held contact keeps its free press (the forces that act while it flies are the
+    others'); so does every contact where none is held, or the LCP is not solved.
+    """
+    order = ws.k[HIT]               # the held contacts first, then the free ones
+    h = 0
+    for i in range(m):
+        if rest[near[i]]:
+            order[h] = near[i]
+            h += 1
+    if h == 0 or h == m:
+        return
+    f = h
+    for i in range(m):
+        if not rest[near[i]]:
+            order[f] = near[i]
+            f += 1
+    A = ws.A
+    contact_matrix(jac, winv, order, np.int64(m), A)
+    w0, force = ws.c[RHS], ws.c[LAM]
+    for i in range(h):
+        w0[i] = -pressed[order[i]]
+    if not lcp(A, w0, np.int64(h), force, ws, np.int64(PGS_SWEEPS)):
+        return
+    for i in range(h, m):
+        s = -pressed[order[i]]
+        for j in range(h):
+            s += A[i, j] * force[j]
+        pressed[order[i]] = -s
+
+
+@njit(cache=True, no_cpython_wrapper=True)
 def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
     """At an event: impulses for the contacts that take part, then the persistent set.
 
@@ -365,22 +402,26 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
     # would have ended: tolerances.zeno_rest_ahead, unlog_rest_ahead). (An elastic
     # contact, e = 1, bounces forever: with a rise of GAP_ROUNDOFF T_EVENT, a box corner
     # pivoting on the ground bounced 3e-13 L high every 0.49 us, 20000 events in 7 ms, in five
-    # of the random drops that failed the event budget. The acceleration here is the free
-    # one: a jack on the floor of a box held on the ground falls with the box, so its bounces,
-    # 0.34 us apart, are not caught here; the loop hands such a step to the fallback after
-    # MAX_EVENTS passes, and a slower bounce that neither shrinks nor stops after a run of
-    # dense steps: records.DENSE_SCORE.)
+    # of the random drops that failed the event budget.) A free contact is pressed by its gap's
+    # acceleration under the forces of the contacts held when the update starts (held_press):
+    # a jack on the floor of a box held on the ground falls with the box, so by the free
+    # acceleration nothing pressed it, and its Zeno cascades ran on to T_VREST (bounces 1e-8 s
+    # apart at e = 0.6; an elastic jack's, 0.34 us apart, filled a step's MAX_EVENTS passes).
     a = ws.n[ACC]
     model.accel(t, q, qd, p, a)
     vrest, pressed, bounce = ws.c[VREST], ws.c[PRESS], ws.c[BOUNCE]
-    half = 0.5 * tol[T_EVENT]
     for i in range(m):
         k = near[i]
         s = jac[k, n + ROW_BIAS]
         for d in range(n):
             s += jac[k, d] * a[d]
+        pressed[k] = -s
+    held_press(jac, winv, near, m, rest, pressed, ws)
+    half = 0.5 * tol[T_EVENT]
+    for i in range(m):
+        k = near[i]
         rise = max(-half - g[k], 0.0) + tol[T_EVENT]
-        pressed[k] = max(-s, 0.0)
+        pressed[k] = max(pressed[k], 0.0)
         bounce[k] = 0.0
         vrest[k] = rest_speed(tol, rise, pressed[k], restitution(model, p, k))
     # The impact: contacts that approach or are closed and still. A receding
