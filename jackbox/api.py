@@ -61,6 +61,33 @@ class Run:
         return self.n_steps // self.record_every + 1 + (self.n_steps % self.record_every != 0)
 
 
+#: names that set several parameter slots at once (in params and in a sweep)
+ALIASES = {"restitution": ("e", "e_ground")}
+
+
+def param_slots(scene: Scene, name, what: str = "params") -> tuple[str, ...]:
+    """The parameter slots that `name` sets: itself, or an alias's (:data:`ALIASES`); else a
+    SimulationError naming `what` (``"params"``, ``"sweep"``) and the names there are."""
+    if name in ALIASES:
+        return ALIASES[name]
+    if name not in scene.param_names:
+        raise SimulationError(f"{what}: unknown parameter {name!r} (parameters: {', '.join(ALIASES)}, "
+                              f"{', '.join(scene.param_names)})")
+    return (name,)
+
+
+def slot_values(scene: Scene, params: dict) -> dict:
+    """`params` by parameter slot, aliases spread over their slots; a slot set twice (``e`` and
+    ``restitution``) is refused."""
+    values, given_as = {}, {}
+    for name, value in params.items():
+        for slot in param_slots(scene, name):
+            if slot in values:
+                raise SimulationError(f"params: {given_as[slot]!r} and {name!r} both set {slot}: give it once")
+            values[slot], given_as[slot] = value, name
+    return values
+
+
 def prepare(scene, t_end=None, dt=None, record_every=1, params=None, method="exact",
             where: str = "simulate(params=...)") -> Run:
     """Check the arguments of a run and resolve defaults from the scene.
@@ -86,11 +113,9 @@ def prepare(scene, t_end=None, dt=None, record_every=1, params=None, method="exa
         raise SimulationError(f"record_every must be a positive integer, got {record_every!r}")
     if method not in METHODS:
         raise SimulationError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-    for name in params or {}:
-        if name not in scene.param_names:
-            raise SimulationError(f"unknown parameter {name!r} (parameters: {', '.join(scene.param_names)})")
+    values = slot_values(scene, params or {})
     # the scene format's rules (e in [0, 1], masses > 0, a start outside the walls ...)
-    p = param_array(scene, dict(params or {}), where)
+    p = param_array(scene, values, where)
     # The last step ends at t_end (or just past it when dt does not divide it).
     if t_end / dt > MAX_STEPS:
         raise SimulationError(f"t_end / dt = {t_end / dt:.3g} steps (dt = {dt:g} s) is more than a run "
@@ -226,7 +251,8 @@ def simulate(scene: Scene | str, t_end: float | None = None, dt: float | None = 
     t_end, dt: override the scene's ``[run]``; the run takes ``ceil(t_end/dt)`` steps.
     record_every: keep every k-th step (and the last one).
     params: values for parameter slots by name (``[params]`` names, ``m_box``,
-    ``e`` ...); nothing is regenerated or recompiled.
+    ``e`` ..., or ``restitution`` for both ``e`` and ``e_ground``); nothing is
+    regenerated or recompiled.
     method: ``"exact"`` (every impact located in time, simultaneous contacts
     solved together, resting contact) or ``"naive"`` (impulse at the end of
     the step in which a gap went negative, first order at impacts).

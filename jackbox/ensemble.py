@@ -99,6 +99,7 @@ def plan(scene, n: int, perturb: dict[str, float] | None = None, params: dict[st
         if value is not None and not isinstance(value, dict):
             raise SimulationError(f"{what} must be a dict of names and values, got {value!r}")
     run = api.prepare(scene, t_end, dt, params=params, where="params")
+    params = api.slot_values(scene, params or {})     # by slot: ``restitution`` is ``e`` and ``e_ground``
     names = [*COORDS, *RATES]
     movable = scene.dof_names + tuple(f"{c}_dot" for c in scene.dof_names)
     pert = []
@@ -116,7 +117,7 @@ def plan(scene, n: int, perturb: dict[str, float] | None = None, params: dict[st
     swept = {}                                 # parameter slot name -> the sweep's name for it
     for name, rng in (sweep or {}).items():
         slots = _param_slots(scene, name)      # refuses an unknown name
-        _check_swept(scene, name, slots, swept, params or {})
+        _check_swept(scene, name, slots, swept, params)
         try:
             lo, hi = rng
         except (TypeError, ValueError):
@@ -132,7 +133,7 @@ def plan(scene, n: int, perturb: dict[str, float] | None = None, params: dict[st
     steps = _sample_steps(samples, run)
     return EnsembleSpec(scene=run.scene, n=int(n), dt=run.dt, n_steps=run.n_steps, seed=int(seed),
                         perturb=tuple(pert), grid=bool(grid),
-                        params=tuple((k, float(v)) for k, v in (params or {}).items()),
+                        params=tuple((k, float(v)) for k, v in params.items()),
                         sweep=tuple(sw), sample_steps=steps)
 
 
@@ -735,12 +736,7 @@ def _check_swept(scene: Scene, name: str, slots: list[int], swept: dict[str, str
 
 
 def _param_slots(scene: Scene, name: str) -> list[int]:
-    if name == "restitution":
-        return [scene.param_names.index("e"), scene.param_names.index("e_ground")]
-    if name not in scene.param_names:
-        raise SimulationError(f"sweep: unknown parameter {name!r} (parameters: restitution, "
-                              f"{', '.join(scene.param_names)})")
-    return [scene.param_names.index(name)]
+    return [scene.param_names.index(slot) for slot in api.param_slots(scene, name, "sweep")]
 
 
 def _fallback_lines(fallback: np.ndarray, warnings: np.ndarray) -> list[str]:

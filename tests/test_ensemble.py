@@ -252,6 +252,7 @@ def test_prescribed_box_members(tmp_path):
     ({"perturb": {"x_jack": 0.1, "y_jack": 0.1}, "grid": True}, "n = m^2"),
     ({"sweep": {"mass": (1, 2)}}, "unknown parameter"),
     ({"sweep": {"restitution": (0.5, 1.5)}}, "[0, 1]"),
+    ({"sweep": {"e": (0.5, 1.0)}, "params": {"restitution": 0.5}}, "e is given both in params and in the sweep"),
     ({"samples": [99.0]}, "between 0 and t_end"),
     ({"seed": 2**63}, "seed must be an integer from 0 to 2^63 - 1"),
     ({"seed": -1}, "seed must be"),

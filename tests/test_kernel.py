@@ -248,6 +248,10 @@ def test_params_change_values_without_regenerating(tmp_path):
     by_set = jackbox.simulate(jackbox.load_scene("drop", {"restitution": "0.6"}), t_end=2.0)
     by_params = jackbox.simulate("drop", t_end=2.0, params={"e": 0.6, "e_ground": 0.6})
     np.testing.assert_array_equal(by_set.q, by_params.q)
+    # ``restitution`` names both slots in params, as it does in a sweep
+    by_alias = jackbox.simulate("drop", t_end=2.0, params={"restitution": 0.6})
+    np.testing.assert_array_equal(by_alias.q, by_params.q)
+    assert by_alias.meta["params"]["e"] == by_alias.meta["params"]["e_ground"] == 0.6
     assert by_set.meta["model_hash"] == by_params.meta["model_hash"] == \
         jackbox.simulate("drop", t_end=0.01).meta["model_hash"]
 
@@ -255,6 +259,10 @@ def test_params_change_values_without_regenerating(tmp_path):
 def test_unknown_param_and_bad_arguments_are_refused():
     with pytest.raises(jackbox.SimulationError, match="unknown parameter 'gravity'"):
         jackbox.simulate("drop", params={"gravity": 1.0})
+    with pytest.raises(jackbox.SimulationError, match="'e' and 'restitution' both set e: give it once"):
+        jackbox.simulate("drop", params={"e": 0.5, "restitution": 0.6})
+    with pytest.raises(jackbox.SceneError, match=r"params=\.\.\.\): e \(impact\.restitution\): must be in \[0, 1\], got 1\.5"):
+        jackbox.simulate("drop", params={"restitution": 1.5})
     with pytest.raises(jackbox.SimulationError, match="dt"):
         jackbox.simulate("drop", dt=-1.0)
     with pytest.raises(jackbox.SimulationError, match="record_every"):
