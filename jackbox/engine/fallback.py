@@ -36,7 +36,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .impact import contact_matrix, lcp, solve_lcp
+from .impact import contact_matrix, lcp, restitution, solve_lcp
 from .modes import add_response, log_event, project_rest, rest_index
 from .records import (ACC, AF, CAND, FALLBACK, GS, HIT, LAM, LAMB, MODE_AT, NEAR, QDS, QS, RHS, RIDX, SET_AT,
                       STABLE_STEPS, T_EVENT, T_GAP, T_VREST, T_WALL, VA, VB, VT, WINV)
@@ -104,7 +104,7 @@ def moreau_step(model, t, h, q, qd, p, tol, ws):
             break
         for i in range(na):
             k = rows[i]
-            e = p[model.e_slot] if k < model.n_wall else p[model.e_ground_slot]
+            e = restitution(model, p, k)
             # Newton's law for an approach faster than the step's own forces give it (and the rest
             # speed): a contact at rest gains -a h each step, and restitution on that would bounce it
             # A contact receding at the step's start may end it approaching as fast: with the

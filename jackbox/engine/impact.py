@@ -23,6 +23,12 @@ from .records import FLAGS, HIT, IDX, LAM, LR, LX, MAX_ENUMERATED, R, RHS, RINV,
 
 
 @njit(cache=True, no_cpython_wrapper=True, inline="always")
+def restitution(model, p, k):
+    """Contact k's coefficient of restitution: the walls' e or the ground's."""
+    return p[model.e_slot] if k < model.n_wall else p[model.e_ground_slot]
+
+
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
 def contact_matrix(jac, winv, rows, m, A):
     """``A = J_R M^-1 J_R^T`` for the m contacts listed in rows (M diagonal: winv = diag M^-1).
 
@@ -334,7 +340,7 @@ def resolve_impacts(model, t, q, qd, p, gap, active_tol, ws, log, n_imp):
     for i in range(m):
         k = rows[i]
         s = jac[k, n + ROW_RATE]
-        e = p[model.e_slot] if k < model.n_wall else p[model.e_ground_slot]
+        e = restitution(model, p, k)
         b[i] = s + e * min(s, 0.0)
         if s < 0.0:
             approaching = True

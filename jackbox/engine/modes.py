@@ -24,7 +24,7 @@ off the held contacts after each step.
 import numpy as np
 from numba import njit
 
-from .impact import PGS_SWEEPS, contact_matrix, factor_rows, lcp, solve_lcp, solve_rows
+from .impact import PGS_SWEEPS, contact_matrix, factor_rows, lcp, restitution, solve_lcp, solve_rows
 from .records import (ACC, BOUNCE, CAND, CARRIES, FLAGS, GS, HIT, IMPULSE, LAM, NEAR, NEWREST, PRESS, RELEASE, REST,
                       RHS, RIDX, RINV, ROW_BIAS, ROW_GAP, ROW_RATE, SLOW, SLOW_AT, STILL, T_AREST, T_EVENT, T_GAP, T_VREST, VB, VREST, WINV)
 from .tolerances import ZENO_TOL, rest_speed, step_of, zeno_rest_ahead
@@ -257,12 +257,6 @@ def log_event(t, k, kind, log, n_ev):
         log.k[n_ev] = k
         log.kind[n_ev] = kind
     return n_ev + 1
-
-
-@njit(cache=True, no_cpython_wrapper=True, inline="always")
-def restitution(model, p, k):
-    """Contact k's coefficient of restitution: the walls' e or the ground's."""
-    return p[model.e_slot] if k < model.n_wall else p[model.e_ground_slot]
 
 
 @njit(cache=True, no_cpython_wrapper=True)
