@@ -269,7 +269,7 @@ def _parser() -> argparse.ArgumentParser:
     scenes.set_defaults(func=cmd_scenes)
 
     cache = sub.add_parser(
-        "cache", help="show where compiled code is cached and its size, or clear it",
+        "cache", help="show where compiled code is cached and its size, prune or clear it",
         description="Generated models and compiled kernels are cached in $JACKBOX_CACHE_DIR, else "
                     "$XDG_CACHE_HOME/jackbox, else ~/.cache/jackbox. A damaged entry is found (by "
                     "checksum, or when it fails to load), removed and rebuilt with one warning; a "
@@ -277,8 +277,10 @@ def _parser() -> argparse.ArgumentParser:
                     "disk is full) is kept for the process only, with one warning. "
                     "What is not cached compiles in two processes where there are two cores "
                     "(JACKBOX_COMPILE_JOBS=1: one).")
-    cache.add_argument("action", nargs="?", choices=("info", "clear"), default="info",
-                       help="info (default): the folder, its files and size; clear: empty it")
+    cache.add_argument("action", nargs="?", choices=("info", "clear", "prune"), default="info",
+                       help="info (default): the folder, its files and size; clear: empty it; prune: remove "
+                            "the engine builds of other versions of jackbox's engine or of Numba (an upgrade "
+                            "compiles a build of its own, some 25 MiB, and leaves the old one)")
     cache.set_defaults(func=cmd_cache)
     return parser
 
@@ -660,6 +662,16 @@ def cmd_cache(args) -> int:
             if (folder / part).is_dir():
                 shutil.rmtree(folder / part)
         print(f"cleared    {folder} ({len(files)} files, {size / 2**20:.1f} MiB)")
+        return 0
+    if args.action == "prune":
+        from .engine.cache import DIGEST
+
+        old = [p for p in sorted(folder.glob("engine/*")) if p.is_dir() and p.name != DIGEST]
+        freed = sum(f.stat().st_size for p in old for f in p.rglob("*") if f.is_file())
+        for p in old:
+            shutil.rmtree(p)
+        print(f"pruned     {len(old)} engine build(s) of other versions ({freed / 2**20:.1f} MiB) from {folder}; "
+              f"kept this one's ({DIGEST})")
         return 0
     models = len(list(folder.glob("models/*.py")))
     functions = len(list(folder.glob("kernels/*.py")))

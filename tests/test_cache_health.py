@@ -228,3 +228,20 @@ def test_cache_command_shows_and_clears_the_folder(fresh_cache, capsys):
     assert not any((fresh_cache / part).exists() for part in ("kernels", "models", "engine"))
     status, out, _ = run_cli(capsys, "cache")
     assert "0 generated models, 0 binding parts" in out
+
+
+def test_cache_prune_removes_only_the_engine_builds_of_other_versions(fresh_cache, capsys):
+    run()
+    this = fresh_cache / "engine" / engine.cache.DIGEST
+    this.mkdir(parents=True, exist_ok=True)
+    (this / "kept.nbi").write_bytes(b"x")
+    older = fresh_cache / "engine" / "0123456789abcdef"
+    older.mkdir()
+    (older / "old.nbc").write_bytes(b"y" * 2**20)
+    before = sorted(p for p in fresh_cache.rglob("*") if "engine" not in p.parts)
+    status, out, _ = run_cli(capsys, "cache", "prune")
+    assert status == 0 and "pruned     1 engine build(s) of other versions (1.0 MiB)" in out, out
+    assert not older.exists() and (this / "kept.nbi").exists()
+    assert sorted(p for p in fresh_cache.rglob("*") if "engine" not in p.parts) == before   # models, kernels
+    status, out, _ = run_cli(capsys, "cache", "prune")
+    assert "pruned     0 engine build(s)" in out
