@@ -346,7 +346,8 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
     Contacts closer than T_GAP take part when they approach or are still.
     Approaching ones get Newton's law (restitution e, or 0 for speeds below
     the contact's rest speed: T_VREST, or what it needs to climb out of the
-    event band against its own normal acceleration; those come to rest); all
+    event band against its own normal acceleration, under the held contacts'
+    forces (:func:`held_press`); those come to rest); all
     are solved together. Then every contact that is closed and still (below
     its rest speed) gets the accelerations' LCP
     ``w = A lam + (J a + bias) >= 0, lam >= 0, w.lam = 0``: those that would
