@@ -649,29 +649,34 @@ def cmd_build(args) -> int:
     return 1 if stale else 0
 
 
+def _tree_size(folder) -> tuple[int, int]:
+    """The files under `folder` and their bytes (none where it does not exist)."""
+    files = [f for f in folder.rglob("*") if f.is_file()] if folder.is_dir() else []
+    return len(files), sum(f.stat().st_size for f in files)
+
+
 def cmd_cache(args) -> int:
     import shutil
 
     from .loader import configured_cache_dir
 
     folder = configured_cache_dir()
-    files = [f for f in folder.rglob("*") if f.is_file()] if folder.is_dir() else []
-    size = sum(f.stat().st_size for f in files)
-    if args.action == "clear":
-        for part in ("models", "kernels", "engine"):      # only what jackbox writes there
-            if (folder / part).is_dir():
-                shutil.rmtree(folder / part)
-        print(f"cleared    {folder} ({len(files)} files, {size / 2**20:.1f} MiB)")
-        return 0
-    if args.action == "prune":
+    if args.action == "prune":           # (the old builds only: not a walk of the whole cache)
         from .engine.cache import DIGEST
 
         old = [p for p in sorted(folder.glob("engine/*")) if p.is_dir() and p.name != DIGEST]
-        freed = sum(f.stat().st_size for p in old for f in p.rglob("*") if f.is_file())
+        freed = sum(_tree_size(p)[1] for p in old)
         for p in old:
             shutil.rmtree(p)
         print(f"pruned     {len(old)} engine build(s) of other versions ({freed / 2**20:.1f} MiB) from {folder}; "
               f"kept this one's ({DIGEST})")
+        return 0
+    n_files, size = _tree_size(folder)
+    if args.action == "clear":
+        for part in ("models", "kernels", "engine"):      # only what jackbox writes there
+            if (folder / part).is_dir():
+                shutil.rmtree(folder / part)
+        print(f"cleared    {folder} ({n_files} files, {size / 2**20:.1f} MiB)")
         return 0
     models = len(list(folder.glob("models/*.py")))
     functions = len(list(folder.glob("kernels/*.py")))
@@ -679,7 +684,7 @@ def cmd_cache(args) -> int:
     print(f"cache      {folder}{'' if folder.is_dir() else ' (not created yet)'}")
     print(f"holds      {models} generated models, {functions} binding parts (a model's functions, compiled "
           f"one by one), "
-          f"{engines} engine build(s), {len(files)} files, {size / 2**20:.1f} MiB")
+          f"{engines} engine build(s), {n_files} files, {size / 2**20:.1f} MiB")
     return 0
 
 
