@@ -552,18 +552,20 @@ class Kernel:
             self._ride = part.COMPILED["ride"]
         return self._ride
 
-    def _compile_stages(self) -> None:
-        """Compile (or load) the engine's stages compiled on first need (engine.LAZY) and this model's ride.
+    def _compile_stages(self, stages: tuple[str, ...] = tuple(engine.LAZY)) -> None:
+        """Compile (or load) engine stages compiled on first need (engine.LAZY; the model's ride with ``hold``).
 
         In two processes where there are two cores: a helper takes a share of
         the engine's stages (:func:`engine.start`, by LAZY_COST) while this
         process compiles the ride, then the rest. One after the other, a cold
         shaken run at e = 0 spent 20 s on them at its first held contact.
         """
-        engine.start((), ("exact",), busy=0.0 if self.ride_ready() else RIDE_COST, costs=engine.LAZY_COST,
+        ride = "hold" in stages
+        engine.start((), stages, busy=RIDE_COST if ride and not self.ride_ready() else 0.0, costs=engine.LAZY_COST,
                      first=False)
-        self.ride()
-        if engine.prepare((), ("exact",)) == "miss":
+        if ride:
+            self.ride()
+        if engine.prepare((), stages) == "miss":
             engine.cache.kept_for_now("a stage of the engine")
 
     def ride_ready(self) -> bool:
@@ -586,13 +588,36 @@ class Kernel:
             if status != engine.MISSING:
                 return i, n_rec, n_ev, status
             # a step needs a stage compiled on first need: compile it, then go on from that step
-            if log and not (all(engine.ready(name) for name in engine.LAZY) and self.ride_ready()):
-                log(f"compiling the engine's {', '.join(engine.LAZY)} stages and the model's held steps for "
-                    f"held contacts at t = {t0 + i * dt:g} s (first use only) ...")
-            self._compile_stages()
+            stages = self._stages_needed(p)
+            if log and not (all(engine.ready(name) for name in stages) and ("hold" not in stages or self.ride_ready())):
+                log(f"compiling the engine's {' and '.join(stages)} stage{'s' if len(stages) > 1 else ''}"
+                    + (" and the model's held steps for held contacts" if "hold" in stages else "")
+                    + f" at t = {t0 + i * dt:g} s (first use only) ...")
+            self._compile_stages(stages)
             self._tables.pop((("exact",), engine.RESUME), None)
             self._tables.pop((("exact",), True), None)
             i_begin = i
+
+    def _stages_needed(self, p) -> tuple[str, ...]:
+        """The stages a single run that stopped for one (MISSING) compiles, with parameters p.
+
+        The stop does not say which stage the step needs (the step is undone,
+        its contact modes with it), so the likely one first: where an impact
+        can be inelastic, the held loop and the release search (a contact
+        coming to rest); where every impact is elastic, the fallback (a step
+        handed over). A guess that misses stops the run again at the same
+        step, and what is in memory then leaves every stage to compile. So the
+        fallback (6.3 s of LAZY_COST) waits for a step handed over: a run that
+        holds contacts but never falls back (shaken or drop at e = 0) never
+        compiles it, and an elastic run that falls back never compiles the
+        held loop and its ride.
+        """
+        module = self.module
+        elastic = p[module.E_SLOT] == 1.0 and (not module.HAS_GROUND or p[module.E_GROUND_SLOT] == 1.0)
+        stages = ("fallback",) if elastic else ("release", "hold")
+        if all(name in engine._loops for name in stages):
+            stages = tuple(engine.LAZY)
+        return stages
 
     def integrate(self, q, qd, p, t0, dt, i_begin, i_end, n_total, record_every,
                   rec_t, rec_q, rec_qd, rec_energy, n_rec, ev_t, ev_k, n_imp):

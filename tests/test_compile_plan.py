@@ -87,11 +87,15 @@ def test_a_held_contact_compiles_the_release_stage_mid_run_and_changes_nothing(m
     said = []
     lazy = jackbox.simulate(scene, t_end=1.5, log=said.append)
     assert statuses.count(engine.MISSING) == 1 and statuses[-1] == engine.DONE
+    # the held loop and the release search, not the fallback: this run never hands a step over
+    assert len(whole.fallback_t) == 0 and {"release", "hold"} <= set(engine._loops)
+    assert "fallback" not in engine._loops
     (share,) = started
     assert share and set(share) < set(engine.LAZY) and not engine._helpers
     # the pause is explained, once
     (line,) = [line for line in said if "stages" in line]
     assert "for held contacts at t = " in line and "first use only" in line
+    assert "release and hold stages" in line and "fallback" not in line
     assert "release" in engine._loops
     for key in ("t", "q", "qd", "energy", "impact_t", "contact_t", "contact_event"):
         np.testing.assert_array_equal(getattr(lazy, key), getattr(whole, key), err_msg=key)
@@ -104,10 +108,30 @@ def test_a_run_that_needs_the_fallback_compiles_it_mid_run_and_changes_nothing(m
     assert len(whole.fallback_t)
     statuses = _without_lazy_stages(monkeypatch)
     lazy = jackbox.simulate(scene, t_end=1.0, dt=dt)
-    assert engine.MISSING in statuses and statuses[-1] == engine.DONE
-    assert {"release", "fallback"} <= set(engine._loops)
+    # plastic: the held loop first (a contact comes to rest), then the fallback where a step is handed over
+    assert statuses.count(engine.MISSING) == 2 and statuses[-1] == engine.DONE
+    assert set(engine.LAZY) <= set(engine._loops)
     for key in ("t", "q", "qd", "fallback_t", "contact_t", "contact_event"):
         np.testing.assert_array_equal(getattr(lazy, key), getattr(whole, key), err_msg=key)
+
+
+@pytest.mark.parametrize("scene, params, first", [
+    ("drop", {"e": 0.0, "e_ground": 0.0}, ("release", "hold")),
+    ("drop", {"e": 1.0, "e_ground": 0.5}, ("release", "hold")),     # (the ground can hold the box)
+    ("drop", {"e": 0.9, "e_ground": 1.0}, ("release", "hold")),
+    ("drop", {"e": 1.0, "e_ground": 1.0}, ("fallback",)),
+    ("spring", {"e": 1.0, "e_ground": 0.0}, ("fallback",)),         # (no ground: its restitution is unused)
+])
+def test_a_single_run_compiles_the_stage_it_most_likely_stopped_for_first(monkeypatch, scene, params, first):
+    # the stop does not say which stage it needs: the held loop where an impact can be plastic, the fallback
+    # where every impact is elastic; with those in memory already (a guess that missed), every stage
+    run = api.prepare(scene, t_end=0.01, params=params)
+    kernel = loader.kernel_for(run.scene)
+    p = run.p
+    monkeypatch.setattr(engine, "_loops", {name: fn for name, fn in engine._loops.items() if name not in engine.LAZY})
+    assert kernel._stages_needed(p) == first
+    monkeypatch.setattr(engine, "_loops", {**engine._loops, **{name: None for name in first}})
+    assert kernel._stages_needed(p) == tuple(engine.LAZY)
 
 
 @pytest.mark.parametrize("study", ["ensemble", "ensemble alone", "chaos", "chaos alone"])
