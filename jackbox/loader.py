@@ -599,7 +599,7 @@ class Kernel:
             i_begin = i
 
     def _stages_needed(self, p) -> tuple[str, ...]:
-        """The stages a single run that stopped for one (MISSING) compiles, with parameters p.
+        """The stages a run that stopped for one (MISSING) compiles, with parameters p (a study: a row each).
 
         The stop does not say which stage the step needs (the step is undone,
         its contact modes with it), so the likely one first: where an impact
@@ -612,8 +612,9 @@ class Kernel:
         compiles it, and an elastic run that falls back never compiles the
         held loop and its ride.
         """
-        module = self.module
-        elastic = p[module.E_SLOT] == 1.0 and (not module.HAS_GROUND or p[module.E_GROUND_SLOT] == 1.0)
+        module, p = self.module, np.asarray(p)
+        elastic = bool(np.all(p[..., module.E_SLOT] == 1.0)
+                       and (not module.HAS_GROUND or np.all(p[..., module.E_GROUND_SLOT] == 1.0)))
         stages = ("fallback",) if elastic else ("release", "hold")
         if all(name in engine._loops for name in stages):
             stages = tuple(engine.LAZY)
@@ -662,12 +663,15 @@ class Kernel:
         engine.entry(entry)(kernel.table(), Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd,
                             fin_q, fin_qd, fin)
         again = np.flatnonzero(fin[:, 3] == engine.MISSING)
-        if again.size:
+        for _ in range(len(engine.LAZY) + 1):      # (at most: the likely stages, then every one)
+            if not again.size:
+                break
             outputs = (np.full_like(samp_q[again], np.nan), np.full_like(samp_qd[again], np.nan),
                        np.zeros_like(fin_q[again]), np.zeros_like(fin_qd[again]), np.zeros_like(fin[again]))
-            run(kernel._all_stages(), again, *outputs)
+            run(kernel._stages_table(P[again]), again, *outputs)
             for whole, part in zip((samp_q, samp_qd, fin_q, fin_qd, fin), outputs):
                 whole[again] = part
+            again = again[outputs[4][:, 3] == engine.MISSING]
         return None
 
     def run_twin_members(self, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin,
@@ -687,11 +691,14 @@ class Kernel:
             entry, kernel = "run_twin_member_blocks", self.with_lanes()
         engine.entry(entry)(kernel.table(), Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin)
         again = np.flatnonzero(fin[:, 1] == engine.MISSING)
-        if again.size:
+        for _ in range(len(engine.LAZY) + 1):      # (at most: the likely stages, then every one)
+            if not again.size:
+                break
             outputs = (np.zeros_like(stretch[again]), np.zeros_like(fin[again]))
-            engine.entry(entry)(kernel._all_stages(), *(a[again] for a in (Q0, QD0, DQ, DQD, P, TOL)),
+            engine.entry(entry)(kernel._stages_table(P[again]), *(a[again] for a in (Q0, QD0, DQ, DQD, P, TOL)),
                                 dt, n_steps, renorm_steps, scale, *outputs)
             stretch[again], fin[again] = outputs
+            again = again[outputs[1][:, 1] == engine.MISSING]
 
     @property
     def has_lanes(self) -> bool:
@@ -716,11 +723,13 @@ class Kernel:
         """This model with its own lanes bound (compiled on first use), for ensemble blocks."""
         return self if self.module.LANES else load_kernel(Path(self.__file__), lanes=True)
 
-    def _all_stages(self):
-        """The table of the exact loop with every stage, compiling the ones compiled on first need now."""
-        self._compile_stages()
+    def _stages_table(self, P):
+        """The exact loop's table for members (parameter rows P) that stopped for a stage: the likely
+        stages compiled first (:meth:`_stages_needed`), those not compiled still left out, so a member
+        that needs one of them stops again (and runs again from its start, with every stage then)."""
+        self._compile_stages(self._stages_needed(P))
         self._tables.pop((("exact",), True), None)
-        return self.table(lazy=False)
+        return self.table(lazy=True)
 
     def set_up_members(self, setup, Q0, QD0, P, TOL, OFFSET, GAP):
         return engine.entry("set_up_members")(self.table(()), setup, Q0, QD0, P, TOL, OFFSET, GAP)
