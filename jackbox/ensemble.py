@@ -119,6 +119,8 @@ def plan(scene, n: int, perturb: dict[str, float] | None = None, params: dict[st
         slots = _param_slots(scene, name)      # refuses an unknown name
         _check_swept(scene, name, slots, swept, params)
         try:
+            if isinstance(rng, (str, bytes, dict)):    # (two letters, or two keys, would unpack)
+                raise TypeError
             lo, hi = rng
         except (TypeError, ValueError):
             raise SimulationError(f"sweep: {name} needs (first, last), got {rng!r}") from None

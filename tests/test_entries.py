@@ -83,6 +83,15 @@ def test_the_cli_refuses_it_in_one_line(slot, key, value, words, capsys, tmp_pat
     assert not any(tmp_path.iterdir())          # nothing written
 
 
+@pytest.mark.parametrize("rng", ["ab", b"ab", {"a": 0.5, "b": 1.0}, 0.5, (0.5,), (0.1, 0.5, 1.0)])
+def test_a_sweep_that_is_not_a_pair_of_ends_is_refused_as_such(rng, monkeypatch):
+    # a two-letter string or a two-key dict unpacks into two "ends": refused for what it is, not for its letters
+    monkeypatch.setattr(jackbox.loader, "kernel_for", _no_kernel)
+    with pytest.raises(SimulationError) as info:
+        ensemble("drop", 4, t_end=0.01, sweep={"restitution": rng})
+    assert str(info.value) == f"sweep: restitution needs (first, last), got {rng!r}"
+
+
 def test_a_size_that_puts_the_start_inside_a_wall_is_refused_everywhere(monkeypatch):
     # drop's jack (a = 0.25) sits in a box of L = 1: a half-size of 3 cannot be inside it
     monkeypatch.setattr(jackbox.loader, "kernel_for", _no_kernel)
