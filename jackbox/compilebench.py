@@ -19,8 +19,10 @@ start to exit:
   --t-end 0.001``;
 * **first held contact**: from an empty cache, ``jackbox run shaken
   --no-plots --set restitution=0 --t-end 3``: the first result, then at the
-  first held contact (1.1 s) the engine's stages compiled on first need and
-  the model's held steps on floats (its ``ride``).
+  first held contact (1.1 s) the engine's stages for held contacts (the
+  release search and the held loop; the fallback waits for a step handed
+  over, which this run never has) and the model's held steps on floats (its
+  ``ride``).
 
 Each process runs as a user's Python does by default, keeping the bytecode of
 the modules it imports (``PYTHONDONTWRITEBYTECODE`` is unset for it: with it

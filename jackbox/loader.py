@@ -638,9 +638,11 @@ class Kernel:
 
         The stages compiled on first need (engine.LAZY) are left out while
         they are not compiled: a member whose step needs one stops (status
-        MISSING); the stage is then compiled and those members run again
-        from their start, which gives the numbers a run with every stage gives
-        (a member's result depends on its inputs only).
+        MISSING); the likely stages are then compiled (:meth:`_stages_table`)
+        and those members run again from their start, which gives the numbers
+        a run with every stage gives (a member's result depends on its inputs
+        only); one that stops again, for another stage, runs again with every
+        stage.
 
         lanes: in blocks of ``engine.LANES`` members stepped together
         (:func:`jackbox.engine.members.run_member_blocks`; the same numbers),
