@@ -116,8 +116,10 @@ FALLBACK_RISE = 1e-6
 #: horizontal momentum of the named drops under gravity and a frictionless ground
 #: (vertical forces only), relative to its scale: round-off of the impulses' x
 #: components. Measured: 3.1e-15 (the elastic drop, 111 impacts), 5.6e-16 (the plastic
-#: one). (Was 1e-13; the random drops keep 1e-13: measured up to 9.7e-15 there, the
-#: ground's vertical impulses can be far larger than the horizontal momentum.)
+#: one). (Was 1e-13; the random drops keep 1e-13, plus the velocities' roundings of their
+#: steps and events (:func:`momentum_rounding`): measured up to 9.7e-15 there, the ground's
+#: vertical impulses can be far larger than the horizontal momentum, and 5.7e-13 where a
+#: heavy jack's 2045 impulses in one step rounded one way.)
 PX_ROUND_OFF = 1e-14
 
 #: A property-test run may log at most this many contact events (impulses, contact mode
