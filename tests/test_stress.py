@@ -378,6 +378,12 @@ def momentum_rounding(traj, P, axes=slice(0, 2)):
     return EPS * float((scale * (moved + per_step)).sum())
 
 
+def horizontal_momentum(traj, P):
+    """(N,) the bodies' horizontal momentum, and its scale: the largest sum of their |m vx|."""
+    px = P["m_box"] * traj.qd[:, 0] + P["m_jack"] * traj.qd[:, 3]
+    return px, (P["m_box"] * np.abs(traj.qd[:, 0]) + P["m_jack"] * np.abs(traj.qd[:, 3])).max()
+
+
 def momenta(traj, P):
     """Linear (N, 2) and angular (N,) momentum about the origin, and their scales."""
     mb, mj, Jb, Jj = P["m_box"], P["m_jack"], P["J_box"], P["J_jack"]
@@ -483,8 +489,7 @@ def check_drop_run(scene, dt):
     check_gaps(traj, scene)
     P = scene.params()
     check_energy(traj, scene, elastic=P["e"] == 1.0 and P["e_ground"] == 1.0)
-    px = P["m_box"] * traj.qd[:, 0] + P["m_jack"] * traj.qd[:, 3]
-    scale = (P["m_box"] * np.abs(traj.qd[:, 0]) + P["m_jack"] * np.abs(traj.qd[:, 3])).max()
+    px, scale = horizontal_momentum(traj, P)
     drift, allowed = np.abs(px - px[0]).max(), 1e-13 * scale + momentum_rounding(traj, P, axes=slice(0, 1))
     assert drift <= allowed, ("horizontal momentum", drift / scale, allowed / scale)     # (see PX_ROUND_OFF)
 
@@ -743,8 +748,7 @@ def test_a_heavy_jack_on_a_box_rocking_on_an_elastic_ground_keeps_its_momentum()
     check_drop_run(scene, dt)
     traj = simulate(scene, t_end=1.0, dt=dt)
     P = scene.params()
-    px = P["m_box"] * traj.qd[:, 0] + P["m_jack"] * traj.qd[:, 3]
-    scale = (P["m_box"] * np.abs(traj.qd[:, 0]) + P["m_jack"] * np.abs(traj.qd[:, 3])).max()
+    px, scale = horizontal_momentum(traj, P)
     assert 1e-13 * scale < np.abs(px - px[0]).max() < 1e-3 * scale      # the case it was kept for
     assert momentum_rounding(traj, P, axes=slice(0, 1)) < 1e-3 * scale
     assert abs(traj.t[-1] - 1.0) < dt and np.isfinite(traj.q[-1]).all() and len(traj.fallback_t) >= 1
@@ -1166,8 +1170,7 @@ def test_fallback_pays_for_its_projections_from_the_motion():
     check_gaps(traj, scene)
     check_energy(traj, scene)
     P = scene.params()
-    px = P["m_box"] * traj.qd[:, 0] + P["m_jack"] * traj.qd[:, 3]
-    scale = (P["m_box"] * np.abs(traj.qd[:, 0]) + P["m_jack"] * np.abs(traj.qd[:, 3])).max()
+    px, scale = horizontal_momentum(traj, P)
     assert np.abs(px - px[0]).max() <= 1e-13 * scale
 
 
