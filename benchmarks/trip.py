@@ -152,6 +152,7 @@ def lane_harness(kernel):
     space: dict = {}
     exec(compile(text.replace("cache=True", "cache=False").split("COMPILED = ")[0], "lane_event part", "exec"), space)
     event_lane, grid_step, time_terms = space["event_lane"], space["grid_step"], space["accel_time_s"]
+    e_slot, e_ground_slot = kernel.E_SLOT, kernel.E_GROUND_SLOT
 
     @njit(cache=False)
     def calls(t, t_next, dt, q, qd, p, tol, count, out):
@@ -159,7 +160,8 @@ def lane_harness(kernel):
         q, qd = (q[0], q[1], q[2], q[3], q[4], q[5]), (qd[0], qd[1], qd[2], qd[3], qd[4], qd[5])
         qn, vn, _ = grid_step(t, t_next, time_terms(t, p), q, qd, dt, p)
         for _ in range(count):
-            what, qb, vb, logged, te, g = event_lane(t, t_next, dt, q, qd, qn, vn, p, tol, sc)
+            what, qb, vb, logged, te, g = event_lane(t, t_next, dt, q, qd, qn, vn, p, tol, sc, p[e_slot],
+                                                     p[e_ground_slot])
         for d in range(6):
             out[d] = qb[d]
             out[6 + d] = vb[d]

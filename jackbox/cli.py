@@ -396,7 +396,7 @@ def cmd_ensemble(args) -> int:
 
 def _lanes_option(parser, what: str) -> None:
     parser.add_argument("--lanes", choices=("auto", "yes", "no"), default="auto",
-                        help=f"{what} that share their parameters fly in blocks of SIMD lanes (the same numbers, "
+                        help=f"{what} that share their parameters (but for the restitution) fly in blocks of SIMD lanes (the same numbers, "
                              "faster): yes, no, or auto (default): where that wins back its compile time (a big "
                              "study) or it is compiled already")
 

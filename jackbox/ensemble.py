@@ -74,7 +74,7 @@ class EnsembleSpec:
     renorm_steps: int = 0                           #: chaos study: steps between renormalisations
     d0: float = 0.0                                 #: chaos study: twin separation (scaled)
     lanes: bool | None = None                       #: blocks of lanes for members that share their parameters
-                                                    #: (None: where it pays, see use_lanes)
+                                                    #: but for the restitution (None: where it pays, see use_lanes)
     device: str = "cpu"                             #: "cpu", or "cuda": one GPU thread per member (jackbox.engine.gpu)
 
     @property
@@ -156,7 +156,7 @@ LANES_WORTH = 1e9
 
 
 def use_lanes(spec: EnsembleSpec, kernel) -> bool:
-    """Whether a study's members that share their parameters go in blocks of lanes.
+    """Whether a study's members that share their parameters (but for the restitution) go in blocks of lanes.
 
     As asked (``spec.lanes`` True or False); else (None) where it pays: when
     the lanes of the model and the block loop are compiled (or cached)
@@ -401,9 +401,10 @@ def ensemble(scene, n: int, perturb=None, params=None, t_end=None, dt=None, seed
     ``"tcp://host:port"`` of a running Dask scheduler; dask_local: start a
     Dask LocalCluster with that many worker processes instead. Results are
     the same bit for bit whichever way the members are split.
-    lanes: members that share their parameters (no sweep) are stepped in
-    blocks of ``engine.LANES``, together in vector instructions while they fly
-    free (:mod:`jackbox.engine.lanes`): the same numbers, faster. None (the
+    lanes: members that share their parameters (no sweep, or one of the
+    restitution alone: each lane has its own) are stepped in blocks of
+    ``engine.LANES``, together in vector instructions while they fly free
+    (:mod:`jackbox.engine.lanes`): the same numbers, faster. None (the
     default): where it pays (:func:`use_lanes`); True: always; False: each
     member alone.
     device: ``"cpu"`` (default), or ``"cuda"``: each member one thread of an

@@ -646,9 +646,10 @@ class Kernel:
 
         lanes: in blocks of ``engine.LANES`` members stepped together
         (:func:`jackbox.engine.members.run_member_blocks`; the same numbers),
-        where the model has lanes and every member has the parameters and
-        tolerances of the first. device: ``"cuda"``, one GPU thread a member
-        (:mod:`jackbox.engine.gpu`; lanes are the CPU's). Returns each member's
+        where the model has lanes and every member has the parameters (but
+        for the restitution) and tolerances of the first (:meth:`lanes_apply`).
+        device: ``"cuda"``, one GPU thread a member (:mod:`jackbox.engine.gpu`;
+        lanes are the CPU's). Returns each member's
         smallest gap at its final state where the GPU computed them, else None.
         """
         if device == "cuda":
@@ -708,9 +709,14 @@ class Kernel:
         return "clearance_v" in self.module.FUNCTIONS
 
     def lanes_apply(self, P, TOL) -> bool:
-        """Whether members with these parameter and tolerance rows can go through lanes (see run_members)."""
-        return (self.has_lanes and P.shape[0] > 0
-                and bool((P == P[0]).all()) and bool((TOL == TOL[0]).all()))
+        """Whether members with these parameter and tolerance rows can go through lanes (see run_members): the
+        same tolerances and the same parameters but for the restitution (e, e_ground), which only an impact
+        reads (each lane has its own: a restitution sweep goes in lanes)."""
+        if not self.has_lanes or P.shape[0] == 0:
+            return False
+        shared = np.ones(P.shape[1], bool)
+        shared[[self.module.E_SLOT, self.module.E_GROUND_SLOT]] = False
+        return bool((P[:, shared] == P[0, shared]).all()) and bool((TOL == TOL[0]).all())
 
     def lanes_ready(self, entry: str = "run_member_blocks") -> bool:
         """Whether this model's lanes and the engine's block loop ``entry`` are compiled or cached (nothing to compile)."""

@@ -1,4 +1,4 @@
-"""Ensemble blocks: members that share their parameters fly together in SIMD lanes
+"""Ensemble blocks: members that share their parameters (but for the restitution) fly together in SIMD lanes
 (jackbox.engine.lanes, jackbox.engine.members.run_block) and get the bits they get alone.
 
 A lane takes a step only where the exact loop would take it as a plain RK4 step, with
@@ -255,8 +255,42 @@ def test_a_member_moved_where_no_contact_is_near_needs_no_contact_update(name, o
     assert needs_held.all()
 
 
-def test_a_sweep_or_a_prescribed_box_steps_its_members_alone(entries, tmp_path):
-    ensemble("shaken", 4, sweep={"restitution": (0.5, 1.0)}, t_end=0.2, lanes=True)     # parameters differ
+@pytest.mark.parametrize("name, sweep, t_end", [
+    ("shaken", {"restitution": (0.0, 1.0)}, 3.0),     # held contacts for the low ones, impacts in the lanes
+    ("drop", {"restitution": (0.3, 1.0)}, 1.5),       # e and e_ground both swept
+    ("drop", {"e_ground": (0.0, 1.0)}, 1.5),          # the ground's alone: the walls' e is shared
+])
+def test_a_restitution_sweep_goes_in_lanes_with_the_bits_alone(name, sweep, t_end, entries):
+    """Members that differ in their restitution alone share a block (each lane reads its own
+    e and e_ground at its impacts, and its stretches alone get its own parameters), and get
+    the bits they get alone. Mutation check: with the lanes' impact reading the block's e
+    (its first member's) or a stretch alone run with the block's parameters, this fails."""
+    lanes, alone = both(name, 2 * LANES + 3, entries, sweep=sweep, t_end=t_end, seed=5,
+                        samples=[0.0, t_end / 3, t_end])
+    assert np.all(alone.status == 0) and len(np.unique(alone.params, axis=0)) == 2 * LANES + 3
+    assert len(np.unique(alone.impacts)) > 5          # (the restitution tells the members apart)
+    for key in ARRAYS:
+        assert same_bits(getattr(lanes, key), getattr(alone, key)), key
+
+
+def test_chaos_twins_of_a_restitution_sweep_in_lanes_have_the_bits_alone(entries):
+    study = dict(t_end=1.5, seed=2, perturb={"theta_jack": 1e-3}, renorm=0.05, sweep={"restitution": (0.0, 1.0)})
+    entries.clear()
+    lanes = chaos("drop", LANES + 3, lanes=True, **study)
+    assert "run_twin_member_blocks" in entries and "run_twin_members" not in entries, entries
+    entries.clear()
+    alone = chaos("drop", LANES + 3, lanes=False, **study)
+    assert "run_twin_members" in entries and "run_twin_member_blocks" not in entries, entries
+    assert np.all(alone.status == 0) and len(np.unique(alone.impacts)) > 5
+    for key in CHAOS_ARRAYS:
+        assert same_bits(np.asarray(getattr(lanes, key)), np.asarray(getattr(alone, key))), key
+
+
+def test_a_sweep_of_what_free_flight_reads_or_a_prescribed_box_steps_its_members_alone(entries, tmp_path):
+    ensemble("shaken", 4, sweep={"A": (0.5, 1.0)}, t_end=0.2, lanes=True)     # the shaking force differs
+    assert "run_members" in entries and "run_member_blocks" not in entries
+    entries.clear()
+    ensemble("shaken", 4, sweep={"restitution": (0.5, 1.0), "A": (0.5, 1.0)}, t_end=0.2, lanes=True)
     assert "run_members" in entries and "run_member_blocks" not in entries
     entries.clear()
     ensemble(jackbox.load_scene(write_scene(tmp_path, PRESCRIBED)), 4, t_end=0.2, lanes=True)   # none for it
@@ -362,6 +396,7 @@ def test_a_lane_takes_the_exact_loop_s_impact_step_bit_for_bit(name, over, share
     exec(compile(text.replace("cache=True", "cache=False").split("COMPILED = ")[0], "lane_event_part", "exec"), space)
     event_lane, grid_step, time_terms = space["event_lane"], space["grid_step"], space["accel_time_s"]
     sc = np.zeros(LANES)
+    e = run.p[kernel.E_SLOT], run.p[kernel.E_GROUND_SLOT]        # (the lane's restitution)
     dt = run.dt
     steps = np.unique(np.floor(traj.impact_t / dt).astype(np.int64))
     taken = 0
@@ -371,7 +406,7 @@ def test_a_lane_takes_the_exact_loop_s_impact_step_bit_for_bit(name, over, share
         t, t_next = traj.t[i], traj.t[i + 1]
         q, qd = tuple(traj.q[i]), tuple(traj.qd[i])
         qn, vn, _ = grid_step(t, t_next, time_terms(t, run.p), q, qd, dt, run.p)     # the lanes' trial
-        what, qb, vb, logged, te, _ = event_lane(t, t_next, dt, q, qd, qn, vn, run.p, tol, sc)
+        what, qb, vb, logged, te, _ = event_lane(t, t_next, dt, q, qd, qn, vn, run.p, tol, sc, *e)
         if what != 1:
             continue
         taken += 1

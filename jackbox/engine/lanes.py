@@ -48,7 +48,8 @@ from jackbox.engine.gaps import (cubic_error as _cubic_error, speed_bound as _sp
 from jackbox.engine.integrator import NODES as _NODES
 from jackbox.engine.modes import time_resolution as _time_resolution, within_reach as _within_reach
 from jackbox.engine.records import (BOUND_ROW as _BOUND, FIRST_ROW as _FIRST, GAP_ROUNDOFF as _GAP_ROUNDOFF,
-                                    IMPULSE_ROW as _IMPULSES, LANES as _W, SCRATCH_ROW as _SCRATCH,
+                                    E_GROUND_ROW as _EG, E_ROW as _E, IMPULSE_ROW as _IMPULSES, LANES as _W,
+                                    SCRATCH_ROW as _SCRATCH,
                                     SPEED_ROW as _SPEED, T_EVENT as _T_EVENT_L,
                                     T_GAP as _T_GAP_L, T_VREST as _T_VREST_L)
 from jackbox.engine.tolerances import rest_speed as _rest_speed
@@ -301,13 +302,14 @@ def crossing_lane(ta, tb, q, qd, qb, vb, ga, gb, va, vr, p, tol, ext):
     return TAKEN, best_l, qa, vat
 
 
-def impact_lane(t, q, qd, p, tol, w, vrest):
+def impact_lane(t, q, qd, p, tol, w, vrest, e_wall, e_ground):
     """``modes.update_contacts`` at an event of a free lane where one contact approaches and none comes to rest.
 
     The same operations in their order: the contacts within reach, their
     rows, rest speeds (into the array vrest) and Newton's law on the one that
     approaches (its LCP of one row, as ``impact.lcp`` solves it); w:
-    diag M^-1. Returns ``(taken, qd after, impulses logged, the gaps at (t,
+    diag M^-1; e_wall, e_ground: the lane's restitution (its parameters' e
+    and e_ground, which p, the block's, need not hold). Returns ``(taken, qd after, impulses logged, the gaps at (t,
     q))``; not taken where the exact update would do more: no contact or
     several that take part, one closed and still, a contact left still after
     the impulse (the accelerations' LCP), or an LCP the enumeration does not
@@ -330,7 +332,7 @@ def impact_lane(t, q, qd, p, tol, w, vrest):
         s = row_dot_s(r, a)
         rise = max(-half - g[k], 0.0) + tol[_T_EVENT_L]
         press = max(-s, 0.0)
-        vrest[k] = _rest_speed(tol, rise, press, p[E_SLOT] if k < N_WALL_CONTACT else p[E_GROUND_SLOT])
+        vrest[k] = _rest_speed(tol, rise, press, e_wall if k < N_WALL_CONTACT else e_ground)
         vk = r[8]
         if vk <= tiny:
             hits += 1
@@ -340,7 +342,7 @@ def impact_lane(t, q, qd, p, tol, w, vrest):
     if hits != 1:                   # (none within reach, several, or none approaching)
         return False, qd, 0, g
     vk = rh[8]
-    e = p[E_SLOT] if kh < N_WALL_CONTACT else p[E_GROUND_SLOT]
+    e = e_wall if kh < N_WALL_CONTACT else e_ground
     b = vk + (e * vk if vk < -vrest[kh] else 0.0)
     if not b < 0.0:                 # (impact.lcp: nothing approaches, no impulse)
         return False, qd, 0, g
@@ -362,13 +364,14 @@ def impact_lane(t, q, qd, p, tol, w, vrest):
     return True, qd, logged, g
 
 
-def event_lane(t, t_next, dt, q, qd, qn, vn, p, tol, sc):
+def event_lane(t, t_next, dt, q, qd, qn, vn, p, tol, sc, e_wall, e_ground):
     """The exact loop's step of a free member from (t, q, qd), its trial (qn, vn) at t_next, where it has an
     event: ``loop.exact_steps``' quiet test, then ``loop.advance``'s passes (a crossing, the update, the
     re-step to t_next, no second crossing), on floats, the same numbers. Returns ``(what, q, qd at t_next,
     impulses logged, the impact's time, smallest gap at t_next)`` (what: :data:`TAKEN` or
     :data:`NO_EVENT`, or :data:`ALONE_CASE` for a step that only the exact loop takes). sc: a row of
-    scratch (a cubic's stationary points, M^-1's diagonal, the rest speeds).
+    scratch (a cubic's stationary points, M^-1's diagonal, the rest speeds); e_wall, e_ground: the
+    member's restitution (:func:`impact_lane`).
     """
     if not finite(qn, vn):
         return ALONE_CASE, qn, vn, 0, t, 0.0
@@ -391,7 +394,8 @@ def event_lane(t, t_next, dt, q, qd, qn, vn, p, tol, sc):
     if not te > t:
         return ALONE_CASE, qn, vn, 0, t, low
     inverse_mass(p, sc[2:2 + N_DOF])
-    taken, vs, logged, ge = impact_lane(te, qs, vs, p, tol, tuple_of(sc[2:2 + N_DOF]), sc[2 + N_DOF:])
+    taken, vs, logged, ge = impact_lane(te, qs, vs, p, tol, tuple_of(sc[2:2 + N_DOF]), sc[2 + N_DOF:], e_wall,
+                                        e_ground)
     if not taken:
         return ALONE_CASE, qn, vn, 0, t, low
     qb, vb = restep(te, accel_time_s(te, p), qs, vs, t_next, p)
@@ -411,14 +415,17 @@ def lane_event(t, t_next, dt, S, lane, at, to, p, tol):
 
     Where taken, the step's end goes into the trial's rows, the smallest gap
     there into the scratch row's first slot, and an impulse into the lane's
-    count (IMPULSE_ROW, FIRST_ROW). Returns what :func:`event_lane` says.
+    count (IMPULSE_ROW, FIRST_ROW). The lane's restitution is read from its
+    rows E_ROW, E_GROUND_ROW (p is the block's: its members may differ in
+    those two alone). Returns what :func:`event_lane` says.
     Its own binding part, so the lanes' part links none of it: compiled
     into theirs it cost them 7 s more to compile (14.7 s against 7.5).
     """
     QV = 6 * _W
     sc = S[_SCRATCH * _W:(_SCRATCH + 1) * _W]
     what, qb, vb, logged, te, g = event_lane(t, t_next, dt, lane_state(S, at, lane), lane_state(S, at + QV, lane),
-                                             lane_state(S, to, lane), lane_state(S, to + QV, lane), p, tol, sc)
+                                             lane_state(S, to, lane), lane_state(S, to + QV, lane), p, tol, sc,
+                                             S[_E * _W + lane], S[_EG * _W + lane])
     if what != ALONE_CASE:
         put_lane_state(S, to, lane, qb)
         put_lane_state(S, to + QV, lane, vb)

@@ -25,7 +25,7 @@ from .draws import START, TWIN, draw_normal, draw_uniform
 from .gaps import speed_bound
 from .modes import time_resolution, within_reach
 from .records import (DERIVE_CROSS, DONE, EXACT_AT, FALLBACK, IMPACT_LOG_FULL, IMPULSE, LANES, MODE_AT, MODE_SLOTS, MODEL_AT,
-                      STAGES_AT, T_BOXV, T_GAP, TIME_ROWS, WARNING, BLOCK_ROWS, BOUND_ROW, FIRST_ROW, IMPULSE_ROW, SPEED_ROW, Events, ExactType, ModelType, Samples,
+                      STAGES_AT, T_BOXV, T_GAP, TIME_ROWS, WARNING, BLOCK_ROWS, BOUND_ROW, E_GROUND_ROW, E_ROW, FIRST_ROW, IMPULSE_ROW, SPEED_ROW, Events, ExactType, ModelType, Samples,
                       StagesType, from_table, TWIN_FIN)
 from .tolerances import set_tolerances
 
@@ -404,14 +404,15 @@ def all_twins(model, exact, stages, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renor
 
 
 # ---------------------------------------------------------------------------
-# blocks: LANES members that share their parameters, stepped together in free flight
+# blocks: LANES members that share their parameters (but for restitution), stepped together in free flight
 
 #: a block of members in lanes: its state (rows of LANES floats, see jackbox.engine.lanes), then per lane
 #: whether it steps in the lanes now, the step it is back from a stretch alone (-1: none), whether its
 #: trial step was quiet, whether it runs, its status and the step it reached, its contact modes, its
-#: tally, and its state while it steps alone; last, the lanes that go alone now (a list, see block_to)
+#: tally, and its state while it steps alone; the lanes that go alone now (a list, see block_to); last,
+#: each lane's parameters (its member's row: the members may differ in their restitution, see set_lane)
 Block = namedtuple("Block", ["S", "live", "back", "quiet", "alive", "status", "reached", "rests", "tallies", "held_q",
-                             "held_qd", "todo"])
+                             "held_qd", "todo", "P"])
 
 #: steps of a block between looks at which of its members are free (a member with a held contact or
 #: in the fallback steps alone, through the exact loop, to the end of such a stretch)
@@ -479,18 +480,32 @@ def time_table(model, p, dt, n_steps):
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def new_block(model):
+def new_block(model, n_params):
     """A block's state (rows of LANES floats, see :mod:`.lanes`) and the per-lane arrays that go with it."""
     W, C = LANES, model.n_contact
     return Block(np.zeros(BLOCK_ROWS * W), np.zeros(W, np.int64), np.zeros(W, np.int64), np.zeros(W, np.int64),
                  np.zeros(W, np.int64), np.zeros(W, np.int64), np.zeros(W, np.int64),
                  np.zeros((W, C + MODE_SLOTS), np.int64), np.empty((W, TALLY)), np.empty((W, 6)), np.empty((W, 6)),
-                 np.zeros(W, np.int64))
+                 np.zeros(W, np.int64), np.empty((W, n_params)))
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def set_lane(model, B, lane, p):
+    """Lane ``lane`` of block B gets the parameters p (its member's row): those its stretches alone and its
+    energy read, and its restitution (rows E_ROW, E_GROUND_ROW of the state), which its impacts in the lanes
+    read (``lanes.lane_event``). The lanes' free flight reads the block's parameters, which equal every
+    member's in all but the restitution (``Kernel.lanes_apply``), so a member's numbers are its own."""
+    W = LANES
+    copy_to(B.P[lane], p)
+    B.S[E_ROW * W + lane] = p[model.e_slot]
+    B.S[E_GROUND_ROW * W + lane] = p[model.e_ground_slot] if model.has_ground else 1.0
 
 
 @njit(cache=True, no_cpython_wrapper=True)
 def start_lane(model, exact, stages, B, lane, q, qd, p, tol, dt, out, log):
-    """Lane ``lane`` of block B from (q, qd): its contact set found and its start recorded into ``out`` (step 0)."""
+    """Lane ``lane`` of block B from (q, qd) with parameters p (:func:`set_lane`'s): its contact set found and
+    its start recorded into ``out`` (step 0)."""
+    set_lane(model, B, lane, p)
     copy_to(B.tallies[lane], new_tally())
     zero = np.int64(0)
     i, _, st, log = run_segment(model, exact, stages, q, qd, B.rests[lane], p, tol, dt, zero, zero, out, zero, log,
@@ -569,7 +584,8 @@ def block_to(model, exact, stages, B, p, tol, tab, dt, i, stop, out, log):
     and rejoins; so does a chaos twin that its renormalisation moved near a
     wall (its contact set is found again in its next step, by the exact loop:
     :func:`needs_update`); one that holds a contact or is in the fallback goes
-    alone to the end of the CHUNK.
+    alone to the end of the CHUNK. p: the parameters the lanes' free flight
+    reads (every lane's, but for the restitution: each lane's own are in B.P).
     A member's numbers are those :func:`run_member` gives it, bit for bit: the
     lanes take only steps the exact loop would take as a plain RK4 step, with
     the same operations, and a call of the exact loop from any step goes on as
@@ -586,7 +602,7 @@ def block_to(model, exact, stages, B, p, tol, tab, dt, i, stop, out, log):
             lane = todo[t]
             take_lane(S, lane, B.held_q[lane], B.held_qd[lane])
             back[lane] = min(i + ALONE, end) if rests[lane, C + MODE_AT] == -1 else end
-            log = alone_to(model, exact, stages, B, lane, p, tol, dt, i, back[lane], out, log)
+            log = alone_to(model, exact, stages, B, lane, tol, dt, i, back[lane], out, log)
         j = i
         while j < end:
             n_todo = lanes_back(back, j, todo)
@@ -598,7 +614,7 @@ def block_to(model, exact, stages, B, p, tol, tab, dt, i, stop, out, log):
                     live[lane] = 1
                 elif alive[lane] == 1:
                     back[lane] = end
-                    log = alone_to(model, exact, stages, B, lane, p, tol, dt, j, end, out, log)
+                    log = alone_to(model, exact, stages, B, lane, tol, dt, j, end, out, log)
             j_stop = end
             n_live = 0
             for lane in range(W):
@@ -617,7 +633,7 @@ def block_to(model, exact, stages, B, p, tol, tab, dt, i, stop, out, log):
                 take_lane(S, lane, B.held_q[lane], B.held_qd[lane])
                 live[lane] = 0
                 back[lane] = min(j + ALONE, end)
-                log = alone_to(model, exact, stages, B, lane, p, tol, dt, j, back[lane], out, log)
+                log = alone_to(model, exact, stages, B, lane, tol, dt, j, back[lane], out, log)
             j += 1
         for lane in range(W):
             if back[lane] >= 0:
@@ -629,16 +645,18 @@ def block_to(model, exact, stages, B, p, tol, tab, dt, i, stop, out, log):
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def run_block(model, exact, stages, Q0, QD0, p, tol, tab, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd,
+def run_block(model, exact, stages, Q0, QD0, P, tol, tab, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd,
               fin, first, count):
     """Members first .. first + count - 1 (count <= LANES) as one block; outputs as :func:`run_member`'s.
 
-    The members share p and tol; the block steps them through
+    The members share tol and their parameters P but for the restitution
+    (each lane its own: :func:`set_lane`); the block steps them through
     :func:`block_to`. Lanes past count hold a copy of the last member's start
     and are never stepped but in the vectors (not written).
     """
     W, n = LANES, 6
-    B = new_block(model)
+    p = P[first]
+    B = new_block(model, P.shape[1])
     q, qd = np.empty(n), np.empty(n)
     out = new_samples(np.int64(2))
     log = new_log(LOG_SIZE)
@@ -650,9 +668,10 @@ def run_block(model, exact, stages, Q0, QD0, p, tol, tab, dt, n_steps, sample_st
         copy_to(qd, QD0[j])
         if lane >= count:           # padding: flies along in the vectors, never stepped alone
             copy_to(B.tallies[lane], new_tally())
+            set_lane(model, B, lane, P[j])
             put_lane(B.S, lane, q, qd)
             continue
-        log = start_lane(model, exact, stages, B, lane, q, qd, p, tol, dt, out, log)
+        log = start_lane(model, exact, stages, B, lane, q, qd, P[j], tol, dt, out, log)
         if at_zero:
             copy_to(samp_q[j, 0], out.q[0])
             copy_to(samp_qd[j, 0], out.qd[0])
@@ -676,7 +695,7 @@ def run_block(model, exact, stages, Q0, QD0, p, tol, tab, dt, n_steps, sample_st
                 copy_to(samp_qd[j, s], qd)
             copy_to(fin_q[j], q)
             copy_to(fin_qd[j], qd)
-            fin[j, 0] = model.energy(0.0 + stop * dt, q, qd, p)
+            fin[j, 0] = model.energy(0.0 + stop * dt, q, qd, P[j])
         if sampled:
             s += 1
         n_alive = 0
@@ -697,11 +716,12 @@ def run_block(model, exact, stages, Q0, QD0, p, tol, tab, dt, n_steps, sample_st
 
 
 @njit(cache=True, no_cpython_wrapper=True, _nrt=True)     # (returns an array: see NO_REFERENCES)
-def alone_to(model, exact, stages, B, lane, p, tol, dt, i, end, out, log):
-    """Member ``lane`` of block B alone through the exact loop from step i to end (its state in B.held_q, B.held_qd)."""
+def alone_to(model, exact, stages, B, lane, tol, dt, i, end, out, log):
+    """Member ``lane`` of block B alone through the exact loop from step i to end (its state in B.held_q, B.held_qd,
+    its parameters in B.P)."""
     fold_impulses(B.S, lane, B.tallies[lane])
-    k, _, st, log = run_segment(model, exact, stages, B.held_q[lane], B.held_qd[lane], B.rests[lane], p, tol, dt, i,
-                                end, out, np.int64(1), log, B.tallies[lane])
+    k, _, st, log = run_segment(model, exact, stages, B.held_q[lane], B.held_qd[lane], B.rests[lane], B.P[lane], tol,
+                                dt, i, end, out, np.int64(1), log, B.tallies[lane])
     if st != DONE:
         B.alive[lane], B.status[lane], B.reached[lane] = 0, st, k
     return log
@@ -709,22 +729,23 @@ def alone_to(model, exact, stages, B, lane, p, tol, dt, i, end, out, log):
 
 @njit(cache=True)
 def run_member_blocks(table, Q0, QD0, P, TOL, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd, fin):
-    """:func:`run_members` in blocks of LANES members (:func:`run_block`), in parallel; the members share P[0], TOL[0]."""
+    """:func:`run_members` in blocks of LANES members (:func:`run_block`), in parallel; the members share TOL[0] and
+    P[0] but for the restitution (``Kernel.lanes_apply``)."""
     model, exact, stages = parts(table)
     tab = time_table(model, P[0], dt, n_steps)
-    all_blocks(model, exact, stages, Q0, QD0, P[0], TOL[0], tab, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q,
+    all_blocks(model, exact, stages, Q0, QD0, P, TOL[0], tab, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q,
                fin_qd, fin)
 
 
 @njit(cache=True, no_cpython_wrapper=True, parallel=True)
-def all_blocks(model, exact, stages, Q0, QD0, p, tol, tab, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd,
+def all_blocks(model, exact, stages, Q0, QD0, P, tol, tab, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q, fin_qd,
                fin):
     N = Q0.shape[0]
     nb = (N + LANES - 1) // LANES
     s = spread_stride(nb)     # (threads get blocks in spread order)
     for i in prange(nb):
         first = (i * s % nb) * LANES
-        run_block(model, exact, stages, Q0, QD0, p, tol, tab, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q,
+        run_block(model, exact, stages, Q0, QD0, P, tol, tab, dt, n_steps, sample_steps, samp_q, samp_qd, fin_q,
                   fin_qd, fin, first, min(LANES, N - first))
 
 
@@ -733,7 +754,7 @@ PAIRS = LANES // 2
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, tab, dt, n_steps, renorm_steps, scale, stretch,
+def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, P, tol, tab, dt, n_steps, renorm_steps, scale, stretch,
                    fin, first, count):
     """Twins of members first .. first + count - 1 (count <= PAIRS) as one block; outputs as :func:`run_twins`'s.
 
@@ -743,10 +764,13 @@ def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, tab, dt, n_st
     ends at the first renormalisation after either of it stopped, with what
     follow_twins reports: it runs a reference's interval before its twin's,
     so where the reference stopped, the twin's interval counts for nothing
-    (its tally and step as at the interval's start).
+    (its tally and step as at the interval's start). A pair's two lanes have
+    its member's parameters (P's rows differ in the restitution at most: see
+    :func:`run_block`).
     """
     n = 6
-    B = new_block(model)
+    p = P[first]
+    B = new_block(model, P.shape[1])
     gv = np.empty((2, model.n_contact))
     q, qd, qt, qdt = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     out = new_samples(np.int64(2))
@@ -768,13 +792,15 @@ def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, tab, dt, n_st
         if r >= count:              # padding: flies along in the vectors, never stepped alone
             copy_to(B.tallies[r], new_tally())
             copy_to(B.tallies[PAIRS + r], new_tally())
+            set_lane(model, B, r, P[j])
+            set_lane(model, B, PAIRS + r, P[j])
             put_lane(B.S, r, q, qd)
             put_lane(B.S, PAIRS + r, qt, qdt)
             continue
         d0[r] = twin_distance(DQ[j], DQD[j], scale, n)
         copy_to(kept[r], new_tally())
-        log = start_lane(model, exact, stages, B, r, q, qd, p, tol, dt, out, log)
-        log = start_lane(model, exact, stages, B, PAIRS + r, qt, qdt, p, tol, dt, out, log)
+        log = start_lane(model, exact, stages, B, r, q, qd, P[j], tol, dt, out, log)
+        log = start_lane(model, exact, stages, B, PAIRS + r, qt, qdt, P[j], tol, dt, out, log)
     i = 0
     n_ended = 0
     while i < n_steps and n_ended < count:
@@ -799,7 +825,7 @@ def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, tab, dt, n_st
             take_lane(B.S, r, q, qd)
             take_lane(B.S, tw, qt, qdt)
             stretch[j, k[r]] = renormalise(model, 0.0 + stop * dt, q, qd, qt, qdt, DQ[j], DQD[j], scale, d0[r],
-                                           B.rests[tw], p, tol, gv)
+                                           B.rests[tw], P[j], tol, gv)
             put_lane(B.S, tw, qt, qdt)
             k[r] += 1
             copy_to(kept[r], B.tallies[tw])
@@ -825,22 +851,22 @@ def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, tab, dt, n_st
 @njit(cache=True)
 def run_twin_member_blocks(table, Q0, QD0, DQ, DQD, P, TOL, dt, n_steps, renorm_steps, scale, stretch, fin):
     """:func:`run_twin_members` in blocks of PAIRS twin pairs (:func:`run_twin_block`), in parallel; the members share
-    P[0], TOL[0]."""
+    TOL[0] and P[0] but for the restitution (``Kernel.lanes_apply``)."""
     model, exact, stages = parts(table)
     tab = time_table(model, P[0], dt, n_steps)
-    all_twin_blocks(model, exact, stages, Q0, QD0, DQ, DQD, P[0], TOL[0], tab, dt, n_steps, renorm_steps, scale,
+    all_twin_blocks(model, exact, stages, Q0, QD0, DQ, DQD, P, TOL[0], tab, dt, n_steps, renorm_steps, scale,
                     stretch, fin)
 
 
 @njit(cache=True, no_cpython_wrapper=True, parallel=True)
-def all_twin_blocks(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, tab, dt, n_steps, renorm_steps, scale, stretch,
+def all_twin_blocks(model, exact, stages, Q0, QD0, DQ, DQD, P, tol, tab, dt, n_steps, renorm_steps, scale, stretch,
                     fin):
     N = Q0.shape[0]
     nb = (N + PAIRS - 1) // PAIRS
     s = spread_stride(nb)     # (threads get blocks in spread order)
     for i in prange(nb):
         first = (i * s % nb) * PAIRS
-        run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, p, tol, tab, dt, n_steps, renorm_steps, scale, stretch,
+        run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, P, tol, tab, dt, n_steps, renorm_steps, scale, stretch,
                        fin, first, min(PAIRS, N - first))
 
 

@@ -180,8 +180,9 @@ TIME_ROWS = 1 << 16
 #: rows of a block's state (each LANES floats, free boxes: six coordinates): q, qd, the trial q and qd
 #: of the step the lanes stopped before, then the bound on every gap at the start and at the trial's end,
 #: the trial step's band, the bound on the gaps' speed at the start and at the trial's end, scratch, and
-#: the impulses each lane took in the lanes (a count, the first one's time) not yet in its tally
-BLOCK_ROWS = 4 * 6 + 8
+#: the impulses each lane took in the lanes (a count, the first one's time) not yet in its tally, and each
+#: lane's coefficients of restitution (the one thing a block's members may not share)
+BLOCK_ROWS = 4 * 6 + 10
 #: the row of each lane's bound on its gaps (NaN: to be computed again), the next that at the trial's end
 BOUND_ROW = 24
 #: the row of each lane's bound on its gaps' speed (with the bound, computed again where that is NaN), the
@@ -193,6 +194,10 @@ SCRATCH_ROW = 29
 #: the rows of the impulses a lane took in the lanes since they were last added to its tally: how many,
 #: and the time of the first (jackbox.engine.members.fold_impulses)
 IMPULSE_ROW, FIRST_ROW = 30, 31
+#: the rows of each lane's restitution at the walls and at the ground (its parameters' e and e_ground): a
+#: block's members share every other parameter, which its lanes read once for all of them; these only a
+#: lane's impact reads (jackbox.engine.lanes.lane_event), so a restitution sweep goes in lanes too
+E_ROW, E_GROUND_ROW = 32, 33
 
 #: integer fields of the model record, then its functions
 SIZES = ("n_dof", "n_contact", "n_wall", "e_slot", "e_ground_slot", "prescribed", "has_ground")
