@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import argparse
 import gc
+import json
 import math
 import os
+import re
 import signal
 import sys
 import threading
@@ -280,7 +282,8 @@ def _parser() -> argparse.ArgumentParser:
     cache.add_argument("action", nargs="?", choices=("info", "clear", "prune"), default="info",
                        help="info (default): the folder, its files and size; clear: empty it; prune: remove "
                             "the engine builds of other versions of jackbox's engine or of Numba (an upgrade "
-                            "compiles a build of its own, some 25 MiB, and leaves the old one)")
+                            "compiles a build of its own, some 25 MiB, and leaves the old one) and the binding "
+                            "parts compiled against them")
     cache.set_defaults(func=cmd_cache)
     return parser
 
@@ -655,6 +658,36 @@ def _tree_size(folder) -> tuple[int, int]:
     return len(files), sum(f.stat().st_size for f in files)
 
 
+#: the line of a binding part that reaches the engine's code, naming the engine build it was made for
+_ENGINE_LINE = re.compile(r"^# engine: ([0-9a-f]+)$", re.MULTILINE)
+
+
+def _parts_of_other_engines(kernels, digest: str) -> list:
+    """The files under a cache's ``kernels`` folder made for another engine build than ``digest``: binding
+    parts whose text names another (jackbox.loader names the engine's digest in every part that reaches
+    its code; such a part is never read by this version), Numba's cache files of those parts (named after
+    them), and the kept cuts of a model into parts (``parts_*.json``) whose texts name another."""
+    old = []
+    for part in sorted(kernels.glob("*.py")):
+        try:
+            head = part.read_text(encoding="utf-8", errors="replace")[:4096]
+        except OSError:
+            continue
+        named = _ENGINE_LINE.search(head)
+        if named and named.group(1) != digest:
+            old.append(part)
+            old.extend(sorted((kernels / "__pycache__").glob(part.stem + ".*")))
+    for kept in sorted(kernels.glob("parts_*.json")):
+        try:
+            texts = json.loads(kept.read_text(encoding="utf-8"))
+            names = {name for text in texts.values() for name in _ENGINE_LINE.findall(text)}
+        except (OSError, ValueError, AttributeError, TypeError):
+            continue                     # (not one of ours as we write them: left)
+        if names and digest not in names:
+            old.append(kept)
+    return old
+
+
 def cmd_cache(args) -> int:
     import shutil
 
@@ -668,7 +701,16 @@ def cmd_cache(args) -> int:
         freed = sum(_tree_size(p)[1] for p in old)
         for p in old:
             shutil.rmtree(p)
-        print(f"pruned     {len(old)} engine build(s) of other versions ({freed / 2**20:.1f} MiB) from {folder}; "
+        parts = _parts_of_other_engines(folder / "kernels", DIGEST)
+        freed_parts = 0
+        for p in parts:
+            try:
+                freed_parts += p.stat().st_size
+                p.unlink()
+            except OSError:
+                pass                     # (gone already, or not ours to remove: left)
+        print(f"pruned     {len(old)} engine build(s) of other versions ({freed / 2**20:.1f} MiB) and "
+              f"{len(parts)} file(s) of binding parts made for them ({freed_parts / 2**20:.1f} MiB) from {folder}; "
               f"kept this one's ({DIGEST})")
         return 0
     n_files, size = _tree_size(folder)

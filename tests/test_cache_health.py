@@ -230,7 +230,7 @@ def test_cache_command_shows_and_clears_the_folder(fresh_cache, capsys):
     assert "0 generated models, 0 binding parts" in out
 
 
-def test_cache_prune_removes_only_the_engine_builds_of_other_versions(fresh_cache, capsys):
+def test_cache_prune_removes_only_what_was_made_for_other_engine_builds(fresh_cache, capsys):
     run()
     this = fresh_cache / "engine" / engine.cache.DIGEST
     this.mkdir(parents=True, exist_ok=True)
@@ -238,10 +238,29 @@ def test_cache_prune_removes_only_the_engine_builds_of_other_versions(fresh_cach
     older = fresh_cache / "engine" / "0123456789abcdef"
     older.mkdir()
     (older / "old.nbc").write_bytes(b"y" * 2**20)
+    # a binding part made for that build (its text names it), its Numba cache files and a kept cut of a
+    # model into parts that names it; and one that names no build (a model's own functions): kept
+    kernels = fresh_cache / "kernels"
+    ours = [p for p in kernels.glob("*.py") if f"# engine: {engine.cache.DIGEST}\n" in p.read_text()]
+    assert ours                                    # (this run's parts that reach the engine's code)
+    header = "# " + "-" * 77 + "\n# Binding part (jackbox.loader): the model's accel as the engine's function value\n"
+    stale = [kernels / "accel_00000000000000aa.py", kernels / "__pycache__" / "accel_00000000000000aa.accel-8.py311.nbi",
+             kernels / "__pycache__" / "accel_00000000000000aa.accel-8.py311.1.nbc",
+             kernels / "parts_00000000000000bb.json"]
+    stale[0].write_text(header + "# engine: 0123456789abcdef\n")
+    stale[1].write_bytes(b"z" * 2**19)
+    stale[2].write_bytes(b"z" * 2**19)
+    stale[3].write_text(json.dumps({"accel": header + "# engine: 0123456789abcdef\n"}))
+    plain = kernels / "phi_00000000000000cc.py"
+    plain.write_text(header)
     before = sorted(p for p in fresh_cache.rglob("*") if "engine" not in p.parts)
     status, out, _ = run_cli(capsys, "cache", "prune")
-    assert status == 0 and "pruned     1 engine build(s) of other versions (1.0 MiB)" in out, out
+    assert status == 0 and ("pruned     1 engine build(s) of other versions (1.0 MiB) and 4 file(s) of binding "
+                            "parts made for them (1.0 MiB)") in out, out
     assert not older.exists() and (this / "kept.nbi").exists()
-    assert sorted(p for p in fresh_cache.rglob("*") if "engine" not in p.parts) == before   # models, kernels
+    # models and kernels: all but the stale ones, this build's parts and the plain one among them
+    assert sorted(p for p in fresh_cache.rglob("*") if "engine" not in p.parts) == [p for p in before
+                                                                                    if p not in stale]
+    assert plain.exists() and all(p.exists() for p in ours)
     status, out, _ = run_cli(capsys, "cache", "prune")
-    assert "pruned     0 engine build(s)" in out
+    assert "pruned     0 engine build(s)" in out and "and 0 file(s)" in out
