@@ -428,14 +428,6 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
     w = tuple_of(winv)
     q, qd = tuple_of(q_io), tuple_of(qd_io)
     k3, k4 = io_k[2], io_k[3]
-    # four rows of the jack on the walls: their gaps depend on the jack's pose in the box alone (three
-    # numbers), so one of them depends on the others. Where a factorization finds that it is the fourth (no
-    # pivot: a jack in a corner), the stages after it but the last (whose matrix's diagonal a handover to
-    # the exact loop passes on) do not read that row: its force is 0 and the others' are what the four
-    # rows give (solve4 reads nothing of a fourth row without a pivot, and respond4's sums start at 0.0, so
-    # the 0 * r4 they leave out is no bit of theirs), as long as it stays dependent, which its geometry
-    # makes it. One call of each function a stage inlines, whatever it reads: the ride compiles as before.
-    walls4 = m == 4 and max(max(k1, k2), max(k3, k4)) < N_WALL_CONTACT
     t_end = math.nan                   # the last step's last stage time, and its terms of time
     tt_end = accel_time_s(t0 + i * dt, p)
     # the pose's terms where the last step's projection ended, and the rows' factorization there where the
@@ -454,9 +446,6 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
         # the stages: a1..a4 their accelerations, v2..v4 their rates; their forces into ls
         a1 = a2 = a3 = a4 = v2 = v3 = v4 = qd
         coast = False
-        # whether the stages before the last read three rows: the fourth is dependent (known from the
-        # projection's factorization, or else from the first stage's)
-        skip = walls4 and factored and f[3] == 0.0
         for s in range(4):
             hs = _NODES[s] * h
             if s == 0:
@@ -475,14 +464,10 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
             # step's projection where it ended (the same pose: the same numbers)
             if s > 0:
                 pose = contact_pose_s(ts, qs, p)
-            ms = 3 if skip and s < 3 else m
-            r1, r2, r3, r4 = held_rows(ts, qs, vs, p, pose, ms, k1, k2, k3, k4)
+            r1, r2, r3, r4 = held_rows(ts, qs, vs, p, pose, m, k1, k2, k3, k4)
             if not (s == 0 and factored):
-                f, A11, A22, A33, a44 = factor_held(w, ms, r1, r2, r3, r4)
-                if ms == m:
-                    A44 = a44
-            a, x1, x2, x3, x4 = held_stage(ts, qs, vs, p, tt, w, ms, r1, r2, r3, r4, f)
-            skip = skip or (walls4 and f[3] == 0.0)
+                f, A11, A22, A33, A44 = factor_held(w, m, r1, r2, r3, r4)
+            a, x1, x2, x3, x4 = held_stage(ts, qs, vs, p, tt, w, m, r1, r2, r3, r4, f)
             for j in range(m):
                 ls[s, j] = x1 if j == 0 else x2 if j == 1 else x3 if j == 2 else x4
             if s == 0:
