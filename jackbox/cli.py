@@ -12,10 +12,8 @@ from __future__ import annotations
 
 import argparse
 import gc
-import json
 import math
 import os
-import re
 import signal
 import sys
 import threading
@@ -399,9 +397,9 @@ def cmd_ensemble(args) -> int:
 
 def _lanes_option(parser, what: str) -> None:
     parser.add_argument("--lanes", choices=("auto", "yes", "no"), default="auto",
-                        help=f"{what} that share their parameters (but for the restitution) fly in blocks of SIMD lanes (the same numbers, "
-                             "faster): yes, no, or auto (default): where that wins back its compile time (a big "
-                             "study) or it is compiled already")
+                        help=f"{what} that share their parameters (but for the restitution) fly in blocks of SIMD "
+                             "lanes (the same numbers, faster): yes, no, or auto (default): where that wins back "
+                             "its compile time (a big study) or it is compiled already")
 
 
 def cmd_chaos(args) -> int:
@@ -658,40 +656,10 @@ def _tree_size(folder) -> tuple[int, int]:
     return len(files), sum(f.stat().st_size for f in files)
 
 
-#: the line of a binding part that reaches the engine's code, naming the engine build it was made for
-_ENGINE_LINE = re.compile(r"^# engine: ([0-9a-f]+)$", re.MULTILINE)
-
-
-def _parts_of_other_engines(kernels, digest: str) -> list:
-    """The files under a cache's ``kernels`` folder made for another engine build than ``digest``: binding
-    parts whose text names another (jackbox.loader names the engine's digest in every part that reaches
-    its code; such a part is never read by this version), Numba's cache files of those parts (named after
-    them), and the kept cuts of a model into parts (``parts_*.json``) whose texts name another."""
-    old = []
-    for part in sorted(kernels.glob("*.py")):
-        try:
-            head = part.read_text(encoding="utf-8", errors="replace")[:4096]
-        except OSError:
-            continue
-        named = _ENGINE_LINE.search(head)
-        if named and named.group(1) != digest:
-            old.append(part)
-            old.extend(sorted((kernels / "__pycache__").glob(part.stem + ".*")))
-    for kept in sorted(kernels.glob("parts_*.json")):
-        try:
-            texts = json.loads(kept.read_text(encoding="utf-8"))
-            names = {name for text in texts.values() for name in _ENGINE_LINE.findall(text)}
-        except (OSError, ValueError, AttributeError, TypeError):
-            continue                     # (not one of ours as we write them: left)
-        if names and digest not in names:
-            old.append(kept)
-    return old
-
-
 def cmd_cache(args) -> int:
     import shutil
 
-    from .loader import configured_cache_dir
+    from .loader import configured_cache_dir, parts_of_other_engines
 
     folder = configured_cache_dir()
     if args.action == "prune":           # (the old builds only: not a walk of the whole cache)
@@ -701,7 +669,7 @@ def cmd_cache(args) -> int:
         freed = sum(_tree_size(p)[1] for p in old)
         for p in old:
             shutil.rmtree(p)
-        parts = _parts_of_other_engines(folder / "kernels", DIGEST)
+        parts = parts_of_other_engines(folder / "kernels", DIGEST)
         freed_parts = 0
         for p in parts:
             try:

@@ -34,6 +34,7 @@ import functools
 import hashlib
 import importlib.util
 import json
+import re
 import sys
 import time
 import warnings
@@ -216,6 +217,37 @@ def binding_parts(model_text: str, flight_text: str | None = None, lanes: bool =
     flight_text = FLIGHT_SOURCE.read_text() if flight_text is None else flight_text
     lanes_text = LANES_SOURCE.read_text() if lanes and has_lanes(model_text) else LANES_STUB
     return dict(_kept_parts(model_text, flight_text, lanes_text, "" if ride else RIDE_STUB, engine.cache.DIGEST))
+
+
+#: the line of a binding part that reaches the engine's code, naming the engine build it was made for
+_ENGINE_LINE = re.compile(r"^# engine: ([0-9a-f]+)$", re.MULTILINE)
+
+
+def parts_of_other_engines(kernels, digest: str) -> list:
+    """The files under a cache's ``kernels`` folder made for another engine build than ``digest``, for
+    ``jackbox cache prune``: binding parts whose text names another (:func:`_binding_parts` names the
+    engine's digest in every part that reaches its code: such a part is never read by this version),
+    Numba's cache files of those parts (named after them), and the kept cuts of a model into parts
+    (``parts_*.json``) whose texts name another."""
+    old = []
+    for part in sorted(kernels.glob("*.py")):
+        try:
+            head = part.read_text(encoding="utf-8", errors="replace")[:4096]
+        except OSError:
+            continue
+        named = _ENGINE_LINE.search(head)
+        if named and named.group(1) != digest:
+            old.append(part)
+            old.extend(sorted((kernels / "__pycache__").glob(part.stem + ".*")))
+    for kept in sorted(kernels.glob("parts_*.json")):
+        try:
+            texts = json.loads(kept.read_text(encoding="utf-8"))
+            names = {name for text in texts.values() for name in _ENGINE_LINE.findall(text)}
+        except (OSError, ValueError, AttributeError, TypeError):
+            continue                     # (not one of ours as we write them: left)
+        if names and digest not in names:
+            old.append(kept)
+    return old
 
 
 #: a digest of this module's own text: how parts are cut (see _kept_parts)

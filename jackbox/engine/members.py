@@ -498,7 +498,7 @@ def set_lane(model, B, lane, p):
     W = LANES
     copy_to(B.P[lane], p)
     B.S[E_ROW * W + lane] = p[model.e_slot]
-    B.S[E_GROUND_ROW * W + lane] = p[model.e_ground_slot] if model.has_ground else 1.0
+    B.S[E_GROUND_ROW * W + lane] = p[model.e_ground_slot]      # (read at ground contacts only)
 
 
 @njit(cache=True, no_cpython_wrapper=True)
