@@ -25,8 +25,8 @@ import numpy as np
 from numba import njit
 
 from .impact import PGS_SWEEPS, contact_matrix, factor_rows, lcp, restitution, solve_lcp, solve_rows
-from .records import (ACC, BOUNCE, CAND, CARRIES, FLAGS, GS, HIT, IMPULSE, LAM, NEAR, NEWREST, PRESS, RELEASE, REST,
-                      RHS, RIDX, RINV, ROW_BIAS, ROW_GAP, ROW_RATE, SLOW, SLOW_AT, STILL, T_AREST, T_EVENT, T_GAP, T_VREST, VB, VREST, WINV)
+from .records import (ACC, BOUNCE, CAND, CARRIES, FLAGS, FOLLOWS, GS, HIT, IMPULSE, LAM, NEAR, NEWREST, PRESS, RELEASE,
+                      REST, RHS, RIDX, RINV, ROW_BIAS, ROW_GAP, ROW_RATE, SLOW, SLOW_AT, STILL, T_AREST, T_EVENT, T_GAP, T_VREST, VB, VREST, WINV)
 from .tolerances import ZENO_TOL, rest_speed, step_of, zeno_rest_ahead
 
 
@@ -53,10 +53,52 @@ def rest_index(rest, C, ridx):
             ridx[m] = k
             m += 1
     for k in range(C):
-        if rest[k] and rest[k] != CARRIES:
+        if rest[k] == STILL:
             ridx[m] = k
             m += 1
     return m
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def hold_independent(model, rest, ws):
+    """Mark the persistent wall contacts that the others fix by the geometry alone FOLLOWS: not rows of the held dynamics.
+
+    A wall contact's gap depends on the jack's pose in the box alone, three
+    degrees of freedom, and the rows of the walls of one direction (the floor
+    and the ceiling, or the two sides) on two of them: so ``h`` rows held on
+    the floor and ceiling and ``v`` on the sides have rank at most
+    ``min(3, min(h, 2) + min(v, 2))`` at every pose (a square jack flush in a
+    corner: four contacts, three degrees of freedom). Where more are held,
+    the held rows' rank-revealing factorization (:func:`~.impact.factor_rows`,
+    in :func:`rest_index`'s order, the held dynamics' own) finds the wall rows
+    that depend on those before them; as many as the excess are taken out of
+    the held dynamics (their forces are 0 there, their gaps follow the held
+    rows' exactly), so that a step in a corner reads and factors three rows,
+    not four. They stay persistent (none is free: no event, no near test),
+    and the next contact update looks at them as at every held contact.
+    The rows ``ws.jac`` of the held contacts must be those at the state.
+    """
+    C, nw = model.n_contact, model.n_wall
+    per_wall = nw // 4
+    h = v = 0
+    for k in range(nw):
+        if rest[k]:
+            if (k // per_wall) % 2:
+                h += 1
+            else:
+                v += 1
+    excess = h + v - min(3, min(h, 2) + min(v, 2))
+    if excess <= 0:
+        return
+    ridx = ws.k[RIDX]
+    m = rest_index(rest, C, ridx)
+    contact_matrix(ws.jac, ws.n[WINV], ridx, np.int64(m), ws.A)
+    rinv = ws.c[RINV]
+    factor_rows(ws.A, np.int64(m), ws.lu, rinv)
+    for j in range(m):
+        if excess > 0 and rinv[j] == 0.0 and ridx[j] < nw:
+            rest[ridx[j]] = FOLLOWS
+            excess -= 1
 
 
 @njit(cache=True, no_cpython_wrapper=True, inline="always")
@@ -496,6 +538,7 @@ def update_contacts(model, t, q, qd, p, tol, rest, ws, log, n_ev):
             unlog_rest_ahead(t, k, tol, log, n_ev)
             n_ev = log_event(t, k, np.int64(RELEASE), log, n_ev)
         rest[k] = newrest[k]
+    hold_independent(model, rest, ws)
     m = rest_index(rest, C, ws.k[RIDX])
     if m > 0:
         project_rest(model, t, q, qd, p, m, 0.5 * tol[T_EVENT], np.int64(2), ws)

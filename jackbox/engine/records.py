@@ -47,6 +47,9 @@ RELEASE = 2             #: a persistent contact let go (its force would have pul
 # those the accelerations' LCP gave a force apart from those it held still with none (modes.rest_index)
 CARRIES = 1
 STILL = 2
+#: persistent, closed by the others held: a wall contact of a redundant set whose gap the held wall
+#: contacts fix by the geometry alone (modes.hold_independent), not a row of the held dynamics
+FOLLOWS = 3
 FALLBACK = 3            #: the run entered (contact: why, HANDOFF_*) or left (contact 0) Moreau-Jean time-stepping
 WARNING = 4             #: a solver did not converge; the "contact" is the WARN_* code
 
