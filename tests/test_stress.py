@@ -967,11 +967,17 @@ def test_a_jack_pressed_into_a_corner_is_held_by_the_lcps_forces_none_pulling(ti
     shaken box at e = 0 went through it on 394 of 3000 steps). The contacts
     the LCP loads now come first (modes.rest_index). The jack stays at rest
     either way: its held accelerations are zero.
+
+    Four wall contacts on the jack's three degrees of freedom in the box are
+    redundant at every pose: the update holds the three independent rows and
+    marks the fourth FOLLOWS (persistent, not a row of the held dynamics;
+    modes.hold_independent).
     """
     import numba
 
     from jackbox.engine.modes import contact_accel, update_contacts
-    from jackbox.engine.records import AF, LAM, MODE_SLOTS, MODEL_AT, RIDX, T_AREST, T_EVENT, Events, ModelType, from_table, scratch
+    from jackbox.engine.records import (AF, FOLLOWS, LAM, MODE_SLOTS, MODEL_AT, RIDX, T_AREST, T_EVENT, Events,
+                                        ModelType, from_table, scratch)
 
     scene = scene_from_text(TILTED, "tilted.toml")
     run = api.prepare(scene)
@@ -994,14 +1000,52 @@ def test_a_jack_pressed_into_a_corner_is_held_by_the_lcps_forces_none_pulling(ti
         floor = np.empty(m)
         for i in range(m):
             floor[i] = -tol[T_AREST] / ws.A[i, i]
-        return ws.k[RIDX][:m].copy(), ws.c[LAM][:m].copy(), floor, ws.A[:m, :m].copy(), ws.n[AF].copy()
+        return (ws.k[RIDX][:m].copy(), ws.c[LAM][:m].copy(), floor, ws.A[:m, :m].copy(), ws.n[AF].copy(),
+                rest[:model.n_contact].copy())
 
-    rows, force, floor, A, accel = held(kernel.table(), q, np.zeros(3), p, tol)
-    assert len(rows) == 4 and np.linalg.matrix_rank(A) == 3        # redundant
+    rows, force, floor, A, accel, rest = held(kernel.table(), q, np.zeros(3), p, tol)
+    persistent = np.flatnonzero(rest)
+    assert len(persistent) == 4                                    # the jack flush in the corner: four contacts
+    follows = [k for k in persistent if rest[k] == FOLLOWS]
+    assert len(follows) == 1 and follows[0] not in rows            # redundant: one follows the three held
+    assert len(rows) == 3 and np.linalg.matrix_rank(A) == 3        # the held rows independent
     assert (force >= floor).all(), (rows, force)
     assert force.sum() > 0.5 * 0.7 * 9.81                          # (they carry the jack)
     assert np.abs(accel).max() <= 1e-12 * 9.81, accel
 
+
+
+def test_a_jack_wedged_in_the_corner_of_a_moving_box_keeps_the_contact_it_does_not_hold_closed():
+    """A square jack falls into the lowest corner of a tilted box that shakes and rocks, and stays there.
+
+    Four wall contacts on the jack's three degrees of freedom: the contact
+    update holds three rows and marks the fourth FOLLOWS (modes.hold_independent),
+    which no step reads, projects or watches. Its gap must follow the held
+    ones' by the geometry alone: every sample's four gaps (numpy's geometry,
+    not the kernel's) stay on the held level, to round-off of it, while the
+    box moves under them. Holding two rows of the four (a wrong count of
+    what the geometry fixes) lets the jack slide out along a wall.
+    """
+    from jackbox.engine.records import T_EVENT
+
+    tilt, c = 0.3, 0.75 - 1e-4             # the jack's centre 1e-4 L from flush in the corner (-L, -L)
+    x, y = -c * math.cos(tilt) + c * math.sin(tilt), -c * math.sin(tilt) - c * math.cos(tilt)
+    text = TILTED.replace('x = "0"', 'x = "0.05*sin(3*t)"').replace('theta = "tilt"', 'theta = "tilt + 0.1*sin(2*t)"')
+    text = text.replace("q = [0, 0, 0, 0, 0, 0]", f"q = [0, 0, 0, {x!r}, {y!r}, {tilt!r}]")
+    text = text.replace("qd = [0, 0, 0, 0, 0, 0]", "qd = [0, 0, 0, 0, 0, 0.2]")
+    scene = scene_from_text(text, "wedged.toml")
+    traj = simulate(scene, t_end=2.0, dt=1e-3)
+    check_finite(traj)
+    gaps = check_gaps(traj, scene)
+    names = scene.constraint_names
+    corner = [names.index(n) for n in traj.held]
+    assert sorted(traj.held) == ["bottom:2", "bottom:3", "left:1", "left:2"], traj.held   # (corner 2 on both)
+    settled = traj.t >= (traj.contact_t.max() if len(traj.contact_t) else 0.0)
+    assert settled.sum() > 0.9 * len(traj.t)            # (wedged within the first tenth of the run)
+    tol = api.tolerances(api.prepare(scene), loader.kernel_for(scene))
+    level = -0.5 * tol[T_EVENT]
+    off = np.abs(gaps[settled][:, corner] - level).max()
+    assert off <= 1e-3 * tol[T_EVENT], (off, tol[T_EVENT])
 
 
 @pytest.mark.parametrize("rows", [[13], [12, 13], [12, 13, 18], [14, 15, 16, 17]])
