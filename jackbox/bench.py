@@ -367,8 +367,9 @@ def bench_resting(repeat: int, size: dict) -> dict:
 #: the stretch (s) of shaken at e = 0 whose steps ride the box's floor: the jack's two tips held on it, no
 #: event from 3.246 s to 6.10 s
 RIDE = (3.3, 5.8)
-#: the stretch (s) of the same run whose jack is held in a corner of the tilted box: four contacts held
-#: (two tips on the floor, two on the right wall, one tip in the corner), a redundant set, no event from
+#: the stretch (s) of the same run whose jack is held in a corner of the tilted box: four contacts persistent
+#: (two tips on the floor, two on the right wall, one tip in the corner), a redundant set (three rows held,
+#: the fourth follows them: jackbox.engine.modes.hold_independent), no event from
 #: 8.5425 s to 9.4803 s. (The run is chaotic: a change to the engine's round-off moves these stretches, and
 #: tests/test_benchmarks_smoke.py says so.)
 CORNER = (8.55, 9.47)
@@ -705,8 +706,9 @@ def markdown(result: dict) -> str:
                 "",
                 f"In a corner: the same run from {corner['from']:g} s to {corner['to']:g} s, the jack wedged in a "
                 "corner of the tilted box (one tip in the corner, touching both walls, one on each wall): four "
-                "rows held with three degrees of freedom between them, so the held solve gives the row that "
-                "depends on the others no force. Taken on floats too (`flight.ride`, `flight.factor4`).",
+                "contacts persistent with three degrees of freedom between them, so the contact update holds "
+                "three rows and marks the one that depends on them as following (`modes.hold_independent`: "
+                "its gap follows theirs by the geometry). Taken on floats too (`flight.ride`, `flight.factor4`).",
             ]
     else:
         lines.append(f"Unavailable: {r.get('reason', 'not measured')}.")

@@ -144,7 +144,7 @@ def test_throughput_resting_row():
     assert ride["held"] == ["bottom:1", "bottom:2"] and ride["events"] == 0
     for key in ("held_ns_per_step", "elastic_ns_per_step", "ratio"):
         assert _positive(ride[key]), (key, ride[key])
-    # and wedged in a corner: four rows held, one of them redundant
+    # and wedged in a corner: four contacts persistent, three rows held and one following them
     corner = r["corner"]
     assert corner["held"] == ["right:2", "right:3", "bottom:1", "bottom:2"] and corner["events"] == 0
     assert _positive(corner["held_ns_per_step"]) and _positive(corner["ratio"])
