@@ -50,6 +50,8 @@ STILL = 2
 #: persistent, closed by the others held: a wall contact of a redundant set whose gap the held wall
 #: contacts fix by the geometry alone (modes.hold_independent), not a row of the held dynamics
 FOLLOWS = 3
+
+# kinds of events in the event log (continued)
 FALLBACK = 3            #: the run entered (contact: why, HANDOFF_*) or left (contact 0) Moreau-Jean time-stepping
 WARNING = 4             #: a solver did not converge; the "contact" is the WARN_* code
 
