@@ -890,6 +890,29 @@ def test_the_fallbacks_hand_over_pushes_no_contact_into_a_wall():
     check_drop_run(jackbox.load_scene(base("drop"), over), dt)
 
 
+#: a draw of the drops (campaign seed 59, 2 in 2000 with its mass-scaled twin; dt, overrides): a box 13 times
+#: lighter than its square jack, low restitution everywhere; Zeno in several contacts sends a step to the fallback
+#: with a box corner 4.8e-3 L into the ground
+DEEP_CORNER_IN_THE_FALLBACK = (0.0004999999999999999, {
+    "box.inner_half_width": 0.6452667264188695, "box.wall_thickness": 0.020333261336586052,
+    "box.mass": 1.035142166679344, "jack.mass": 13.031667784522998, "jack.half_size": 0.5767709880715735,
+    "gravity": 9.81, "restitution": 0.11729675600339665, "ground_restitution": 0.006037743413113363,
+    "initial.q": [0.24321375149337368, 2.770613409272047, 1.0849382142797257, 0.2432137514889028,
+                  2.7706134092744077, 1.1164496195701124],
+    "initial.qd": [-2.3144599542094553e-38, 8.24257266155739, -8.79627667821213, -7.075664469422217,
+                   -5.5693016349379505, -8.37748708125336]})
+
+
+def test_the_fallbacks_projection_puts_a_deep_corner_on_the_level():
+    """The fallback's projection (fallback.project_gaps) took the corner from 4.8e-3 L down to 1.7e-12 L below
+    the level in three passes, then stalled there: the members kept from the deep first pass (the jack's tips
+    1.4e-2 L above the box's floor) set its LCP's tolerance (relative to the largest right-hand side), which
+    accepted the corner where it was (-2.2e-12 L at t = 0.335 s, the floor here -2e-12 L). A pass that does
+    not halve the depth now starts its members afresh."""
+    dt, over = DEEP_CORNER_IN_THE_FALLBACK
+    check_drop_run(jackbox.load_scene(base("drop"), over), dt)
+
+
 def test_a_held_pair_turning_fast_gains_no_energy():
     """A draw of test_random_drops_never_penetrate_nor_gain_energy, kept (seed 6; the same scene at four
     mass scales failed alike).
