@@ -334,8 +334,9 @@ def fallback_step(model, update, t, h, q, qd, p, tol, rest, ws, log, n_ev):
     on the event level with no normal rate (its first-order state leaves them
     a little off, and the exact method would see a fall and a new Zeno
     cascade), with any contact that this pushes below the level, and the
-    contact update finds the persistent set from the accelerations' LCP. Returns ``(n_ev, m)``: m the persistent contacts the
-    exact method starts with (0 while the fallback goes on).
+    contact update finds the persistent set from the accelerations' LCP.
+    Returns ``(n_ev, m)``: m the persistent contacts the exact method starts
+    with (0 while the fallback goes on).
     """
     C = model.n_contact
     mask = moreau_step(model, t, h, q, qd, p, tol, ws)
