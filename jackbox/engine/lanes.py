@@ -49,6 +49,7 @@ from jackbox.engine.integrator import NODES as _NODES
 from jackbox.engine.modes import time_resolution as _time_resolution, within_reach as _within_reach
 from jackbox.engine.records import (BOUND_ROW as _BOUND, FIRST_ROW as _FIRST, GAP_ROUNDOFF as _GAP_ROUNDOFF,
                                     E_GROUND_ROW as _EG, E_ROW as _E, IMPULSE_ROW as _IMPULSES, LANES as _W,
+                                    PACK_ROW as _PACK,
                                     SCRATCH_ROW as _SCRATCH,
                                     SPEED_ROW as _SPEED, T_EVENT as _T_EVENT_L,
                                     T_GAP as _T_GAP_L, T_VREST as _T_VREST_L)
@@ -166,6 +167,9 @@ def calm(t, t_next, q, qd, qn, vn, p, tol, ext):
 #: what a lane's event step says: taken (its end and impulses in S), no event after all (the trial
 #: stands), or a case it leaves to the exact loop (the member goes alone, as before)
 TAKEN, NO_EVENT, ALONE_CASE = 1, 0, -1
+
+#: lanes a vector of the loops over them holds (LLVM's choice here: 256 bits, four floats)
+PAD = 4
 
 
 def restep(ta, tta, q, qd, s, p):
@@ -509,6 +513,49 @@ def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet, tab, event):
     return i
 
 
+def rebound(t, S, at, GA, GB, BAND, live, quiet, pt):
+    """The bound on every gap at time t (:func:`lane_bound`) computed again for the live lanes whose lowered
+    bound runs low in a step: quiet by it at the step's start (GA), not at its end (GB, lowered by the band).
+
+    A vector loop over those lanes alone: their indices listed in the
+    PACK_ROW rows' eighth, their coordinates (from row ``at`` on) packed side
+    by side into its first six, padded with the last to a whole number of
+    vectors (:data:`PAD`: a loop's remainder runs a lane at a time, at five
+    times a vector lane's cost), their bounds into its seventh and from there
+    back into GB; each of them quiet where its bound says so and its end is
+    finite. (Computed again for every lane of the block at once, a shaken
+    study's lanes spent a sixth of their time on bounds: four lanes ran low
+    at a time, out of 32.) A lane that was not quiet at the start keeps its
+    lowered bound, below the band: the exact loop's test (:func:`calm`)
+    reads its gaps anyway. Returns how many of them are quiet after all.
+    """
+    n = live.shape[0]
+    at_index, at_bound = (_PACK + 7) * _W, (_PACK + 6) * _W
+    m = 0
+    for lane in range(n):
+        S[_u8(at_index + m)] = lane
+        band = S[_u8(BAND + lane)]
+        m += live[lane] & (S[_u8(GA + lane)] >= band) & (S[_u8(GB + lane)] < band)
+    if m == 0:
+        return 0
+    padded = min(n, (m + PAD - 1) // PAD * PAD)
+    for j in range(m, padded):
+        S[_u8(at_index + j)] = S[_u8(at_index + m - 1)]
+    for j in range(padded):
+        put_lane_state(S, _PACK * _W, j, lane_state(S, at, int(S[_u8(at_index + j)])))
+    for j in range(padded):
+        S[_u8(at_bound + j)] = lane_bound(t, lane_state(S, _PACK * _W, j), pt)
+    back = 0
+    for j in range(m):
+        lane = int(S[_u8(at_index + j)])
+        g = S[_u8(at_bound + j)]
+        S[_u8(GB + lane)] = g
+        ok = (g >= S[_u8(BAND + lane)]) & finite(lane_state(S, at, lane), lane_state(S, at + 6 * _W, lane))
+        quiet[lane] = ok
+        back += ok
+    return back
+
+
 def step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, tab, A, B, GA, GB, SA, SB, event):
     """Step i of every lane from the state in rows A.. to its trial in rows B.. (bounds: GA, SA to GB, SB).
 
@@ -530,6 +577,7 @@ def step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, tab, A, B, GA, GB,
     else:
         ttm, tt_next = accel_time_s(tm, p), accel_time_s(t_next, p)
     low = 0
+    stop = 0
     for lane in range(n):
         qn, vn = rk4_stages(lane_state(S, A, lane), lane_state(S, A + QV, lane), dt, pt, t, tt, tm, ttm, t_next,
                             tt_next)
@@ -537,22 +585,18 @@ def step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, tab, A, B, GA, GB,
         put_lane_state(S, B + QV, lane, vn)
         sb = _speed_bound(vn, tl)
         band = dt * max(S[_u8(SA + lane)], sb) + margin       # as in fly
-        c = S[_u8(GA + lane)] - band
+        ga = S[_u8(GA + lane)]
+        c = ga - band
         S[_u8(SB + lane)] = sb
         S[_u8(BAND + lane)] = band
         S[_u8(GB + lane)] = c
-        low += live[lane] & (S[_u8(GA + lane)] >= band) & (c < band)
-    if low:        # some live lane's lowered bound runs low: every gap of every lane at the trial's end
-        for lane in range(n):
-            S[_u8(GB + lane)] = lane_bound(t_next, lane_state(S, B, lane), pt)
-    stop = 0
-    for lane in range(n):
-        qn, vn = lane_state(S, B, lane), lane_state(S, B + QV, lane)
-        band = S[_u8(BAND + lane)]
         # quiet at both ends, and finite (min and max hide a NaN)
-        ok = (S[_u8(GA + lane)] >= band) & (S[_u8(GB + lane)] >= band) & finite(qn, vn)
+        ok = (ga >= band) & (c >= band) & finite(qn, vn)
         quiet[lane] = ok
         stop += live[lane] & (1 - ok)
+        low += live[lane] & (ga >= band) & (c < band)
+    if low:        # some live lanes' lowered bounds run low: every gap of those at the trial's end
+        stop -= rebound(t_next, S, B, GA, GB, BAND, live, quiet, pt)
     if stop:       # a live lane near a wall: the exact loop's own test for an event in the step
         stop = 0
         sc = S[_SCRATCH * _W:(_SCRATCH + 1) * _W]
@@ -587,4 +631,5 @@ def trade(S, n):
 
 #: the helpers a lanes part inlines at Numba's level (``inline="always"``): a loop over the lanes
 #: with a call left in it is not vectorised
-INLINED = ("sincos", "lane_state", "put_lane_state", "clearance_v", "lane_bound", "params_of", "tolerances_of", "finite", "step_block")
+INLINED = ("sincos", "lane_state", "put_lane_state", "clearance_v", "lane_bound", "params_of", "tolerances_of", "finite", "step_block",
+           "rebound")

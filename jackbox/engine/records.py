@@ -185,9 +185,10 @@ TIME_ROWS = 1 << 16
 #: rows of a block's state (each LANES floats, free boxes: six coordinates): q, qd, the trial q and qd
 #: of the step the lanes stopped before, then the bound on every gap at the start and at the trial's end,
 #: the trial step's band, the bound on the gaps' speed at the start and at the trial's end, scratch, and
-#: the impulses each lane took in the lanes (a count, the first one's time) not yet in its tally, and each
-#: lane's coefficients of restitution (the one thing a block's members may not share)
-BLOCK_ROWS = 4 * 6 + 10
+#: the impulses each lane took in the lanes (a count, the first one's time) not yet in its tally, each
+#: lane's coefficients of restitution (the one thing a block's members may not share), and the rows where
+#: the lanes whose bound runs low are packed to have it computed again (PACK_ROW)
+BLOCK_ROWS = 4 * 6 + 10 + 8
 #: the row of each lane's bound on its gaps (NaN: to be computed again), the next that at the trial's end
 BOUND_ROW = 24
 #: the row of each lane's bound on its gaps' speed (with the bound, computed again where that is NaN), the
@@ -203,6 +204,12 @@ IMPULSE_ROW, FIRST_ROW = 30, 31
 #: block's members share every other parameter, which its lanes read once for all of them; these only a
 #: lane's impact reads (jackbox.engine.lanes.lane_event), so a restitution sweep goes in lanes too
 E_ROW, E_GROUND_ROW = 32, 33
+#: six rows into which a step packs the coordinates of the lanes whose bound on their gaps runs low, side
+#: by side from the first lane, a seventh for their bounds computed again and an eighth for their indices
+#: (jackbox.engine.lanes.rebound):
+#: a vector loop over those alone (with the block's every lane computed again at once, a lane that came
+#: near a wall cost the other 31 their bounds too)
+PACK_ROW = 34
 
 #: integer fields of the model record, then its functions
 SIZES = ("n_dof", "n_contact", "n_wall", "e_slot", "e_ground_slot", "prescribed", "has_ground")
