@@ -40,6 +40,7 @@ exact loop, alone).
 import math
 
 from numba import uint64 as _u8
+from numba.cpython.unsafe.numbers import trailing_zeros as _trailing_zeros
 
 from jackbox.engine.events import (LOCATE_PROBES as _LOCATE_PROBES, cubic_root as _cubic_root, first_dip as _first_dip,
                                    first_hump as _first_hump, illinois_keep as _illinois_keep,
@@ -513,12 +514,13 @@ def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet, tab, event):
     return i
 
 
-def rebound(t, S, at, GA, GB, BAND, live, quiet, pt):
+def rebound(t, S, at, GB, BAND, runs_low, quiet, pt):
     """The bound on every gap at time t (:func:`lane_bound`) computed again for the live lanes whose lowered
     bound runs low in a step: quiet by it at the step's start (GA), not at its end (GB, lowered by the band).
 
-    A vector loop over those lanes alone: their indices listed in the
-    PACK_ROW rows' eighth, their coordinates (from row ``at`` on) packed side
+    A vector loop over those lanes alone (runs_low: bit ``lane`` set for
+    each, by the step's own loop): their indices listed in the PACK_ROW
+    rows' eighth, their coordinates (from row ``at`` on) packed side
     by side into its first six, padded with the last to a whole number of
     vectors (:data:`PAD`: a loop's remainder runs a lane at a time, at five
     times a vector lane's cost), their bounds into its seventh and from there
@@ -529,13 +531,13 @@ def rebound(t, S, at, GA, GB, BAND, live, quiet, pt):
     lowered bound, below the band: the exact loop's test (:func:`calm`)
     reads its gaps anyway. Returns how many of them are quiet after all.
     """
-    n = live.shape[0]
+    n = quiet.shape[0]
     at_index, at_bound = (_PACK + 7) * _W, (_PACK + 6) * _W
     m = 0
-    for lane in range(n):
-        S[_u8(at_index + m)] = lane
-        band = S[_u8(BAND + lane)]
-        m += live[lane] & (S[_u8(GA + lane)] >= band) & (S[_u8(GB + lane)] < band)
+    while runs_low:
+        S[_u8(at_index + m)] = _trailing_zeros(runs_low)
+        m += 1
+        runs_low &= runs_low - 1
     if m == 0:
         return 0
     padded = min(n, (m + PAD - 1) // PAD * PAD)
@@ -594,9 +596,9 @@ def step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, tab, A, B, GA, GB,
         ok = (ga >= band) & (c >= band) & finite(qn, vn)
         quiet[lane] = ok
         stop += live[lane] & (1 - ok)
-        low += live[lane] & (ga >= band) & (c < band)
+        low |= (live[lane] & (ga >= band) & (c < band)) << lane
     if low:        # some live lanes' lowered bounds run low: every gap of those at the trial's end
-        stop -= rebound(t_next, S, B, GA, GB, BAND, live, quiet, pt)
+        stop -= rebound(t_next, S, B, GB, BAND, low, quiet, pt)
     if stop:       # a live lane near a wall: the exact loop's own test for an event in the step
         stop = 0
         sc = S[_SCRATCH * _W:(_SCRATCH + 1) * _W]
