@@ -23,12 +23,13 @@ here has the bits it would have had alone.
 A step is taken for the block only if it is quiet for every live lane: every
 gap, at both ends, further from contact than the step can move it, by the
 margin the exact loop asks (``step_reach``) plus T_GAP. As in the hot path's
-``fly``, a lane's bound on its gaps is lowered by each step's band, and all
-of them are computed again (every gap: the model's ``clearance_v`` with the
-sines and cosines of :func:`sincos`, a polynomial that LLVM can vectorise,
-within 2 eps of the library's) only in a step where some live lane's bound
-runs low: the extra T_GAP, a thousand times what that difference can move a
-gap, keeps a lane's "quiet" from ever being the exact loop's "not quiet".
+``fly``, a lane's bound on its gaps is lowered by each step's band, and it
+is computed again (every gap: the model's ``clearance_v`` with the sines and
+cosines of :func:`sincos`, a polynomial that LLVM can vectorise, within 2
+eps of the library's) only in a step where it runs low, for the lanes whose
+bound runs low alone (:func:`rebound`): the extra T_GAP, a thousand times
+what that difference can move a gap, keeps a lane's "quiet" from ever being
+the exact loop's "not quiet".
 A lane that is not quiet takes the step if the exact loop would find no
 event in it (:func:`calm`), or takes the exact loop's impact step itself,
 on floats, where it is a plain one (:func:`event_lane`, in the model's
@@ -519,7 +520,7 @@ def rebound(t, S, at, GB, BAND, runs_low, quiet, pt):
     bound runs low in a step: quiet by it at the step's start (GA), not at its end (GB, lowered by the band).
 
     A vector loop over those lanes alone (runs_low: bit ``lane`` set for
-    each, by the step's own loop): their indices listed in the PACK_ROW
+    each, by the step's own loop; an int64, so LANES is at most 64): their indices listed in the PACK_ROW
     rows' eighth, their coordinates (from row ``at`` on) packed side
     by side into its first six, padded with the last to a whole number of
     vectors (:data:`PAD`: a loop's remainder runs a lane at a time, at five

@@ -178,6 +178,7 @@ SIGNATURES = {
 #: less of it a member (one thread, member-steps/s: 16 lanes 4.67e7 shaken and 9.5e7 with no impact, 32
 #: lanes 5.11e7 and 1.15e8, 64 lanes 5.12e7 and 1.21e8)
 LANES = 32
+assert LANES <= 64, "a step marks its lanes that run low by a bit each of an int64 (jackbox.engine.lanes.rebound)"
 #: the steps of a study whose terms of time (a shaking force's sine: two calls of libm a step, a tenth of
 #: a shaken study's time in lanes) its lanes read from a table made once for all its blocks
 #: (jackbox.engine.lanes.time_table; a megabyte a term at most); later steps compute them, block by block
@@ -206,8 +207,7 @@ IMPULSE_ROW, FIRST_ROW = 30, 31
 E_ROW, E_GROUND_ROW = 32, 33
 #: six rows into which a step packs the coordinates of the lanes whose bound on their gaps runs low, side
 #: by side from the first lane, a seventh for their bounds computed again and an eighth for their indices
-#: (jackbox.engine.lanes.rebound):
-#: a vector loop over those alone (with the block's every lane computed again at once, a lane that came
+#: (jackbox.engine.lanes.rebound): a vector loop over those alone (with the block's every lane computed again at once, a lane that came
 #: near a wall cost the other 31 their bounds too)
 PACK_ROW = 34
 
