@@ -530,7 +530,8 @@ def rebound(t, S, at, GB, BAND, runs_low, quiet, pt):
     study's lanes spent a sixth of their time on bounds: four lanes ran low
     at a time, out of 32.) A lane that was not quiet at the start keeps its
     lowered bound, below the band: the exact loop's test (:func:`calm`)
-    reads its gaps anyway. Returns how many of them are quiet after all.
+    reads its gaps anyway. Called with at least one bit set; returns how
+    many of those lanes are quiet after all.
     """
     n = quiet.shape[0]
     at_index, at_bound = (_PACK + 7) * _W, (_PACK + 6) * _W
@@ -539,8 +540,6 @@ def rebound(t, S, at, GB, BAND, runs_low, quiet, pt):
         S[_u8(at_index + m)] = _trailing_zeros(runs_low)
         m += 1
         runs_low &= runs_low - 1
-    if m == 0:
-        return 0
     padded = min(n, (m + PAD - 1) // PAD * PAD)
     for j in range(m, padded):
         S[_u8(at_index + j)] = S[_u8(at_index + m - 1)]
