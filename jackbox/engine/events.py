@@ -17,7 +17,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .gaps import cubic_error, hermite, hermite_extrema, hermite_slope, step_reach
+from .gaps import cubic_error, dip_free, hermite, hermite_extrema, hermite_slope, step_reach
 from .modes import accel, contact_accel
 from .records import (AF, DLEV, FLAGS, GA, GAP_ROUNDOFF, GB, GS, HUMP, LAM, LAMA, LAMB, LEV, LR, LS, QB, QDB, QDS, QS, RIDX,
                       T_AREST, T_EVENT, T_VREST, VA, VB, WARN_LOCATE)
@@ -274,9 +274,15 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
     ga, gb, va, vb, lev = ws.c[GA], ws.c[GB], ws.c[VA], ws.c[VB], ws.c[LEV]
     hump, dlev = ws.c[HUMP], ws.c[DLEV]
     band = step_reach(qd, ws.n[QDB], h, tol)
+    # a dip whose cubic stays above zero by less than the cubic's own error is looked at (one
+    # re-step to its bottom): a corner turning fast can dip below zero where its cubic does not
+    dip = cubic_error(qd, ws.n[QDB], h, tol)
+    # no free gap within the step's reach, or none that its rates could take below dip_free: no event
+    clear = dip_free(band, dip, tol)
     near = False
     for k in range(C):
-        if not rest[k] and min(ga[k], gb[k]) + deep < band:
+        g = min(ga[k], gb[k])
+        if not rest[k] and g + deep < band and g + half < clear:
             near = True
             break
     if not near:
@@ -293,9 +299,6 @@ def first_crossing(model, step, ta, tb, q, qd, p, tol, rest, m, ws):
         dlev[k] = lev[k]
         hump[k] = -math.inf      # (the time from which lev[k] holds: the whole step)
     ext = ws.ext
-    # a dip whose cubic stays above zero by less than the cubic's own error is looked at (one
-    # re-step to its bottom): a corner turning fast can dip below zero where its cubic does not
-    dip = cubic_error(qd, ws.n[QDB], h, tol)
     # the time whose RK4 state (and gaps) the last re-step left in ws.n[QS] (and ws.c[GS]); -1: none
     # known. The state just before the crossing is stepped to again only where it is not that one
     # (locate's last probe is its bracket's left end whenever it stops at the event to round-off)

@@ -36,6 +36,28 @@ def step_reach(qd_a, qd_b, h, tol):
     return h * max(speed_bound(qd_a, tol), speed_bound(qd_b, tol)) + tol[T_GAP]
 
 
+#: how far the cubic through a gap's values and rates at a step's ends can sag below the lower end, per unit of
+#: the step's travel bound h max(speed_bound): its Hermite weights on the two rates are s (1 - s)^2 and
+#: s^2 (1 - s), each at most 4/27 on [0, 1], and each rate is within the bound
+SAG = 8.0 / 27.0
+
+
+@njit(cache=True, no_cpython_wrapper=True, inline="always")
+def dip_free(band, dip, tol):
+    """The level above which a gap at both ends of a step (on its event level) needs no look at its rates.
+
+    band: :func:`step_reach` of the step, dip: :func:`cubic_error`. A gap
+    at least this far above its level at both ends has a cubic (the values and
+    the rates h v at the ends, each |v| within the speed bound) that stays
+    above ``dip`` by T_GAP (a million times the round-off of the cubic's
+    value): no end below the level, no dip the event search would step to
+    (:func:`jackbox.engine.events.first_dip`), whatever its rates are. A step
+    whose gaps within its reach are all this far up is taken without
+    computing a rate (a third of the steps near a wall had some gap nearer).
+    """
+    return SAG * (band - tol[T_GAP]) + dip + tol[T_GAP]
+
+
 @njit(cache=True, no_cpython_wrapper=True)
 def cubic_error(qd_a, qd_b, h, tol):
     """How far a gap can stray from the cubic through its values and rates at both ends of a step.

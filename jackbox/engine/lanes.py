@@ -46,7 +46,8 @@ from numba.cpython.unsafe.numbers import trailing_zeros as _trailing_zeros
 from jackbox.engine.events import (LOCATE_PROBES as _LOCATE_PROBES, cubic_root as _cubic_root, first_dip as _first_dip,
                                    first_hump as _first_hump, illinois_keep as _illinois_keep,
                                    illinois_probe as _illinois_probe, time_tolerance as _time_tolerance)
-from jackbox.engine.gaps import (cubic_error as _cubic_error, speed_bound as _speed_bound, step_reach as _step_reach)
+from jackbox.engine.gaps import (cubic_error as _cubic_error, dip_free as _dip_free, speed_bound as _speed_bound,
+                                 step_reach as _step_reach)
 from jackbox.engine.integrator import NODES as _NODES
 from jackbox.engine.modes import time_resolution as _time_resolution, within_reach as _within_reach
 from jackbox.engine.records import (BOUND_ROW as _BOUND, FIRST_ROW as _FIRST, GAP_ROUNDOFF as _GAP_ROUNDOFF,
@@ -138,18 +139,20 @@ def calm(t, t_next, q, qd, qn, vn, p, tol, ext):
     ga = phi_s(t, q, p)
     gb = phi_s(t_next, qn, p)
     band = _step_reach(qd, vn, h, tol)
+    dip = _cubic_error(qd, vn, h, tol)
+    clear = _dip_free(band, dip, tol)       # (the exact loop's test for a look at the rates)
     smallest = gb[0]
     near = False
     for k in range(N_CONTACT):
         smallest = min(smallest, gb[k])
-        if min(ga[k], gb[k]) + deep < band:
+        g = min(ga[k], gb[k])
+        if g + deep < band and g + half < clear:
             near = True
     if not near:
         return True, smallest
     va = gap_rate_s(t, q, qd, p)
     vb = gap_rate_s(t_next, qn, vn, p)
     tiny = 1e-3 * tol[_T_VREST_L]
-    dip = _cubic_error(qd, vn, h, tol)
     for k in range(N_CONTACT):
         if ga[k] + half < 0.0 and va[k] >= -tiny:
             return False, smallest      # a deep start (its level changes in the step): the exact loop's own
