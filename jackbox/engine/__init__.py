@@ -288,7 +288,7 @@ def bind_part(name: str, fn):
         warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
         # (Numba leaves LLVM's SLP vectoriser off, which the lanes need: it runs in Numba's first,
         # per-function pass and packs pairs of a lane's operations, which keeps the loop vectoriser
-        # from packing eight lanes: 11.5 against 7 ns a lane-step, measured)
+        # from packing the lanes: 11.5 against 7 ns a lane-step, measured)
         # (and without reference counting: a model function allocates nothing and writes into the
         # arrays it is handed, which its caller keeps alive; see NO_REFERENCES)
         # (NumPy's error model: a division by zero in the model's terms, a shaking period T = 0 or a

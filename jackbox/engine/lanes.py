@@ -12,7 +12,7 @@ loop over the lanes is written for LLVM's loop vectoriser: no call, no
 branch, the parameters and tolerances read into registers before it
 (``params_of``), and a trip count read at run time (a constant one of LANES is
 unrolled whole before the vectoriser sees it), so a loop becomes vector
-instructions of eight lanes. The terms of time (a shaking force's sine) are
+instructions of four lanes (LLVM's 256-bit vectors here: :data:`PAD`). The terms of time (a shaking force's sine) are
 the study's: its members share their parameters, so they are computed once
 per stage time for all of them, into a table (:func:`time_table`) that every
 block reads (computed per block-step, they were a tenth of a shaken study's
