@@ -203,3 +203,36 @@ def test_an_impact_lcp_of_more_contacts_than_enumerated_is_solved_exactly(seed):
     assert np.max(np.minimum(lam * np.diag(A), np.abs(w))) <= 1e-9 * scale       # pushing, or not touching
     assert np.count_nonzero(lam) <= 5
     assert projected_gauss_seidel(A, b, 2000) is None      # what the engine did before (unconverged at 20000 too)
+
+
+# --- a step near a wall with no look at its rates: gaps.dip_free ------------------------------------------
+
+def test_a_gap_above_dip_free_at_both_ends_never_dips_and_the_level_is_the_worst_case():
+    """Above ``dip_free`` at both ends, no rates within the speed bound give the event search a dip or a
+    crossing (so the exact loop and the lanes skip computing them); just below it, rates at the bound do."""
+    import numba
+
+    from jackbox.engine import events
+    from jackbox.engine.gaps import dip_free, hermite
+
+    first_dip, level = numba.njit(events.first_dip.py_func), numba.njit(dip_free.py_func)
+    tol = np.zeros(R.T_SPEED + 6)
+    tol[R.T_GAP] = 1e-9
+    ext = np.zeros(2)
+    rng = np.random.default_rng(7)
+    s = np.linspace(0.0, 1.0, 2001)
+    for _ in range(3000):
+        travel = 10.0 ** rng.uniform(-6, -1)            # h times the larger end's speed bound
+        dip = travel * 10.0 ** rng.uniform(-9, -1)      # the cubic's error
+        band = travel + tol[R.T_GAP]
+        clear = level(band, dip, tol)
+        fa, fb = clear + travel * rng.exponential(0.05, 2) * (rng.random(2) < 0.7)
+        da, db = travel * rng.uniform(-1, 1, 2) * np.where(rng.random(2) < 0.3, 1.0, rng.random(2))
+        if rng.random() < 0.3:                          # the worst case: both at the bound, towards then away
+            da, db = -travel, travel
+        assert first_dip(fa, fb, da, db, dip, -1.0, ext) == -1.0
+        assert min(hermite.py_func(fa, fb, da, db, x) for x in s[::50]) > dip
+    # a hair below the level, the worst case's cubic dips below its error at mid-step: the search steps there
+    travel, dip = 1e-3, 1e-9
+    below = level(travel + tol[R.T_GAP], dip, tol) - 1e-3 * travel
+    assert first_dip(below, below, -travel, travel, dip, -1.0, ext) == pytest.approx(0.5)

@@ -37,9 +37,10 @@ def step_reach(qd_a, qd_b, h, tol):
 
 
 #: how far the cubic through a gap's values and rates at a step's ends can sag below the lower end, per unit of
-#: the step's travel bound h max(speed_bound): its Hermite weights on the two rates are s (1 - s)^2 and
-#: s^2 (1 - s), each at most 4/27 on [0, 1], and each rate is within the bound
-SAG = 8.0 / 27.0
+#: the step's travel bound h max(speed_bound): its Hermite weights on the two rates, s (1 - s)^2 and
+#: -s^2 (1 - s), add up in size to s (1 - s), at most 1/4 (at s = 1/2: both ends' rates at the bound, the
+#: first towards the wall, the second away), and each rate is within the bound
+SAG = 0.25
 
 
 @njit(cache=True, no_cpython_wrapper=True, inline="always")
