@@ -54,7 +54,7 @@ def dip_free(band, dip, tol):
     value): no end below the level, no dip the event search would step to
     (:func:`jackbox.engine.events.first_dip`), whatever its rates are. A step
     whose gaps within its reach are all this far up is taken without
-    computing a rate (a third of the steps near a wall had some gap nearer).
+    computing a rate (in a shaken run, about a quarter of the steps near a wall had some gap nearer).
     """
     return SAG * (band - tol[T_GAP]) + dip + tol[T_GAP]
 
