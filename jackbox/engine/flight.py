@@ -30,8 +30,9 @@ from jackbox.engine.broad import bound as _bound
 from jackbox.engine.gaps import speed_bound as _speed_bound, step_reach as _step_reach
 from jackbox.engine.impact import RANK_TOL as _RANK_TOL
 from jackbox.engine.integrator import NODES as _NODES, SCALE as _SCALE, WEIGHTS as _WEIGHTS, held_passes as _held_passes
-from jackbox.engine.records import (COAST as _COAST, DRIFT as _DRIFT, T_AREST as _T_AREST, T_EVENT as _T_EVENT,
-                                    T_GAP as _T_GAP, T_SPEED as _T_SPEED, T_WALL as _T_WALL)
+from jackbox.engine.records import (COAST as _COAST, DRIFT as _DRIFT, REPASS as _REPASS, REPASSES as _REPASSES,
+                                    T_AREST as _T_AREST, T_EVENT as _T_EVENT, T_GAP as _T_GAP, T_SPEED as _T_SPEED,
+                                    T_WALL as _T_WALL)
 
 #: skip the gap rows of steps whose bounding circles are far from contact
 #: (the benchmark compiles a copy with False to show the gain)
@@ -354,24 +355,33 @@ def settle(t, q, qd, p, w, m, k1, k2, k3, k4, level, drift, h):
 
     The rows at (t, q, qd), factored; where a gap drifted past round-off, one
     Newton pass on the gaps (:func:`jackbox.engine.modes.project_rows`) and the
-    rows read again where it ends; the rates projected with the first
-    factorization. Returns ``(q, qd, pose, f, on)``: the pose's terms where it
-    ends (``contact_pose_s``), the factorization and whether it is that pose's
+    rows read again where it ends, and where a gap is still off its level by
+    more than REPASS of it, up to REPASSES more passes, each from the rows
+    read last, factored; the rates projected with the last factorization.
+    Returns ``(q, qd, pose, f, on)``: the pose's terms where it ends
+    (``contact_pose_s``), the factorization and whether it is that pose's
     (on: no Newton pass), for the next step's first stage.
     """
     gap, rate = N_DOF + 1, N_DOF + 2
-    for j in range(2):
-        pose = contact_pose_s(t, q, p)
-        r1, r2, r3, r4 = held_rows(t, q, qd, p, pose, m, k1, k2, k3, k4)
-        if j == 0:
-            f = factor_held(w, m, r1, r2, r3, r4)
-            on = True
-            for r in (r1, r2, r3, r4):      # (past the m rows, a row again)
-                on = on and abs(r[gap] + level) <= drift and abs(r[rate]) * h <= drift
-            if on:
-                break
+    pose = contact_pose_s(t, q, p)
+    r1, r2, r3, r4 = held_rows(t, q, qd, p, pose, m, k1, k2, k3, k4)
+    f = factor_held(w, m, r1, r2, r3, r4)
+    on = True
+    for r in (r1, r2, r3, r4):      # (past the m rows, a row again)
+        on = on and abs(r[gap] + level) <= drift and abs(r[rate]) * h <= drift
+    if not on:
+        repass = _REPASS * level
+        for j in range(_REPASSES + 1):
             q = held_push(q, w, m, f[0], r1, r2, r3, r4, -(r1[gap] + level), -(r2[gap] + level),
                           -(r3[gap] + level), -(r4[gap] + level))[0]
+            pose = contact_pose_s(t, q, p)
+            r1, r2, r3, r4 = held_rows(t, q, qd, p, pose, m, k1, k2, k3, k4)
+            again = False
+            for r in (r1, r2, r3, r4):
+                again = again or not abs(r[gap] + level) <= repass
+            if j == _REPASSES or not again:
+                break
+            f = factor_held(w, m, r1, r2, r3, r4)
     qd = held_push(qd, w, m, f[0], r1, r2, r3, r4, -r1[rate], -r2[rate], -r3[rate], -r4[rate])[0]
     return q, qd, pose, f, on
 

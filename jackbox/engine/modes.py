@@ -26,7 +26,7 @@ from numba import njit
 
 from .impact import PGS_SWEEPS, contact_matrix, factor_rows, lcp, restitution, solve_lcp, solve_rows
 from .records import (ACC, BOUNCE, CAND, CARRIES, FLAGS, FOLLOWS, GS, HIT, IMPULSE, LAM, NEAR, NEWREST, PRESS, RELEASE,
-                      REST, RHS, RIDX, RINV, ROW_BIAS, ROW_GAP, ROW_RATE, SLOW, SLOW_AT, STILL, T_AREST, T_EVENT, T_GAP, T_VREST, VB, VREST, WINV)
+                      REPASS, REPASSES, REST, RHS, RIDX, RINV, ROW_BIAS, ROW_GAP, ROW_RATE, SLOW, SLOW_AT, STILL, T_AREST, T_EVENT, T_GAP, T_VREST, VB, VREST, WINV)
 from .tolerances import ZENO_TOL, rest_speed, step_of, zeno_rest_ahead
 
 
@@ -230,19 +230,27 @@ def project_rows(model, t, q, qd, p, m, level, passes, ridx, jac, winv, A, L, ri
     model's ``contact_rows`` (factored: the first pass's rows and their
     factorization are in jac, L and rinv already); the rates are read at the
     corrected coordinates by one more, and projected with the last pass's
-    factorization.
+    factorization. Where a gap is still off its level by more than REPASS of
+    it after the passes asked for (a drift too large for one pass to leave
+    round-off), up to REPASSES more passes, from the rows already read.
     """
     n = model.n_dof
-    for j in range(passes):
-        if j > 0 or not factored:
-            model.contact_rows(t, q, qd, p, ridx, m, jac)
-            contact_matrix(jac, winv, ridx, m, A)
-            factor_rows(A, m, L, rinv)
+    if not factored:
+        model.contact_rows(t, q, qd, p, ridx, m, jac)
+        contact_matrix(jac, winv, ridx, m, A)
+        factor_rows(A, m, L, rinv)
+    j = 0
+    while True:
         for i in range(m):
             y[i] = -(jac[ridx[i], n + ROW_GAP] + level)
         solve_rows(y, m, L, rinv, y, x)
         add_response(jac, winv, ridx, m, x, n, q)
-    model.contact_rows(t, q, qd, p, ridx, m, jac)
+        j += 1
+        model.contact_rows(t, q, qd, p, ridx, m, jac)
+        if j >= passes and (j >= passes + REPASSES or on_level(jac, ridx, m, n, level, REPASS * level, 0.0)):
+            break
+        contact_matrix(jac, winv, ridx, m, A)
+        factor_rows(A, m, L, rinv)
     project_rates(jac, winv, ridx, m, n, L, rinv, y, x, qd)
 
 

@@ -125,6 +125,12 @@ GAP_ROUNDOFF = 1e-3
 #: not projected after a quiet held step (jackbox.engine.modes.settle_rows): a quarter of GAP_ROUNDOFF,
 #: about one unit in the last place of the box's size
 DRIFT = 2.5e-4
+#: a held gap still off its level by more than this fraction of the level (1e-13 L) after the Newton
+#: passes of a projection gets another pass, REPASSES more at most: a pass leaves the square of what it
+#: corrected, round-off after a quiet step, but a held step at omega dt ~ 0.1 (a jack 6000 times the
+#: box's mass turning 0.1 rad a step in a corner) drifts by ~1e-6 L, and one pass left 3e-12 L
+REPASS = 0.2
+REPASSES = 3
 #: a held step coasts (moves every coordinate on at its rate: jackbox.engine.loop.hold) where the held
 #: accelerations, at both of its ends, move no gap by more than this fraction of T_AREST (itself 1e-12 L
 #: a step): 1e-18 L a step, a hundred times the round-off they carry at rest (8.5e-9 of T_AREST at most
