@@ -31,7 +31,10 @@ bound runs low alone (:func:`rebound`): the extra T_GAP, a thousand times
 what that difference can move a gap, keeps a lane's "quiet" from ever being
 the exact loop's "not quiet".
 A lane that is not quiet takes the step if the exact loop would find no
-event in it (:func:`calm`), or takes the exact loop's impact step itself,
+event in it: its bounds at both ends (the bound at the end computed again
+for it) may say so already (:func:`calm_by_bounds`: no gap within the
+step's reach and low enough for the exact loop to read its rates), else
+:func:`calm` asks the exact loop's question of the gaps; or it takes the exact loop's impact step itself,
 on floats, where it is a plain one (:func:`event_lane`, in the model's
 ``lane_event`` part). Otherwise the lanes stop before that step and say
 which are quiet (:mod:`jackbox.engine.members` takes the others through the
@@ -129,7 +132,9 @@ def calm(t, t_next, q, qd, qn, vn, p, tol, ext):
     this says no: the member goes through the exact loop; so it does for a
     contact that starts the step below the held level without approaching
     (its event level is the exact loop's to choose, and may change within the
-    step). Returns ``(calm, smallest gap at t_next)``.
+    step). Returns ``(calm, smallest gap at t_next)``. (:func:`step_block`
+    asks :func:`calm_by_bounds` first: in a shaken run, two steps in three
+    near a wall need no gap read.)
     """
     if not finite(qn, vn):
         return False, 0.0
@@ -164,6 +169,20 @@ def calm(t, t_next, q, qd, qn, vn, p, tol, ext):
         if _first_dip(fa, fb, h * va[k], h * vb[k], dip, -1.0, ext) >= 0.0:
             return False, smallest
     return True, smallest
+
+
+def calm_by_bounds(t, t_next, qd, vn, bound_a, bound_b, tol):
+    """Whether :func:`calm` would say yes with no gap read: bounds on every gap at both ends of the step (the
+    lane's, :func:`lane_bound`'s at least T_GAP below the model's ``phi_s``) above what its near test
+    asks (the exact loop's: a gap within reach and below ``gaps.dip_free``), so none is near. A NaN says no.
+    """
+    h = t_next - t
+    half = 0.5 * tol[_T_EVENT_L]
+    deep = half + tol[_T_EVENT_L]
+    band = _step_reach(qd, vn, h, tol)
+    clear = _dip_free(band, _cubic_error(qd, vn, h, tol), tol)
+    a, b = bound_a - tol[_T_GAP_L], bound_b - tol[_T_GAP_L]
+    return ((a + deep >= band) | (a + half >= clear)) & ((b + deep >= band) | (b + half >= clear))
 
 
 # ---------------------------------------------------------------------------
@@ -518,9 +537,10 @@ def lanes(t0, dt, i, i_stop, S, p, tol, live, quiet, tab, event):
     return i
 
 
-def rebound(t, S, at, GB, BAND, runs_low, quiet, pt):
+def rebound(t, S, at, GA, GB, BAND, runs_low, quiet, pt):
     """The bound on every gap at time t (:func:`lane_bound`) computed again for the live lanes whose lowered
-    bound runs low in a step: quiet by it at the step's start (GA), not at its end (GB, lowered by the band).
+    bound runs low in a step (GB, lowered by the band), those whose bound at the step's start (GA) is low too
+    included: their steps go to :func:`calm`, which reads their bounds at both ends first.
 
     A vector loop over those lanes alone (runs_low: bit ``lane`` set for
     each, by the step's own loop; an int64, so LANES is at most 64): their indices listed in the PACK_ROW
@@ -529,11 +549,12 @@ def rebound(t, S, at, GB, BAND, runs_low, quiet, pt):
     vectors (:data:`PAD`: a loop's remainder runs a lane at a time, at five
     times a vector lane's cost), their bounds into its seventh and from there
     back into GB; each of them quiet where its bound says so and its end is
-    finite. (Computed again for every lane of the block at once, a shaken
+    finite, and its bound at the start clears the band too. (Computed again for every lane of the block at once, a shaken
     study's lanes spent a sixth of their time on bounds: four lanes ran low
-    at a time, out of 32.) A lane that was not quiet at the start keeps its
-    lowered bound, below the band: the exact loop's test (:func:`calm`)
-    reads its gaps anyway. Called with at least one bit set; returns how
+    at a time, out of 32.) A lane that was not quiet at the start gets its
+    bound at the end all the same: with the start's, it lets :func:`calm`
+    see, in most steps near a wall, that no gap is near enough for the
+    exact loop to look at, without reading one. Called with at least one bit set; returns how
     many of those lanes are quiet after all.
     """
     n = quiet.shape[0]
@@ -555,7 +576,8 @@ def rebound(t, S, at, GB, BAND, runs_low, quiet, pt):
         lane = int(S[_u8(at_index + j)])
         g = S[_u8(at_bound + j)]
         S[_u8(GB + lane)] = g
-        ok = (g >= S[_u8(BAND + lane)]) & finite(lane_state(S, at, lane), lane_state(S, at + 6 * _W, lane))
+        band = S[_u8(BAND + lane)]
+        ok = (S[_u8(GA + lane)] >= band) & (g >= band) & finite(lane_state(S, at, lane), lane_state(S, at + 6 * _W, lane))
         quiet[lane] = ok
         back += ok
     return back
@@ -599,16 +621,20 @@ def step_block(t0, dt, i, S, p, tol, live, quiet, pt, tl, tt, tab, A, B, GA, GB,
         ok = (ga >= band) & (c >= band) & finite(qn, vn)
         quiet[lane] = ok
         stop += live[lane] & (1 - ok)
-        low |= (live[lane] & (ga >= band) & (c < band)) << lane
+        low |= (live[lane] & (c < band)) << lane
     if low:        # some live lanes' lowered bounds run low: every gap of those at the trial's end
-        stop -= rebound(t_next, S, B, GB, BAND, low, quiet, pt)
+        stop -= rebound(t_next, S, B, GA, GB, BAND, low, quiet, pt)
     if stop:       # a live lane near a wall: the exact loop's own test for an event in the step
         stop = 0
         sc = S[_SCRATCH * _W:(_SCRATCH + 1) * _W]
         for lane in range(n):
             if live[lane] and not quiet[lane]:
+                vn = lane_state(S, B + QV, lane)
+                if calm_by_bounds(t, t_next, lane_state(S, A + QV, lane), vn, S[_u8(GA + lane)], S[_u8(GB + lane)], tl):
+                    quiet[lane] = 1     # (its bound at the end stays)
+                    continue
                 ok, g = calm(t, t_next, lane_state(S, A, lane), lane_state(S, A + QV, lane), lane_state(S, B, lane),
-                             lane_state(S, B + QV, lane), p, tol, sc)
+                             vn, p, tol, sc)
                 if ok:
                     quiet[lane] = 1
                     S[_u8(GB + lane)] = g
@@ -637,4 +663,4 @@ def trade(S, n):
 #: the helpers a lanes part inlines at Numba's level (``inline="always"``): a loop over the lanes
 #: with a call left in it is not vectorised
 INLINED = ("sincos", "lane_state", "put_lane_state", "clearance_v", "lane_bound", "params_of", "tolerances_of", "finite", "step_block",
-           "rebound")
+           "rebound", "calm_by_bounds")
