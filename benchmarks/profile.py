@@ -1,6 +1,7 @@
 """Where the time of a run or a study goes, function by function: Linux ``perf`` on Numba's machine code.
 
     python benchmarks/profile.py ensemble shaken [--lanes] [--n 2000] [--t-end 10] [--seconds 4] [--top 25]
+    python benchmarks/profile.py chaos shaken --lanes [--renorm 0.01] ...
     python benchmarks/profile.py run drop [--t-end 10] ...
     python benchmarks/profile.py held corner        (or riding: jackbox bench's held stretches)
 
@@ -71,7 +72,7 @@ def workload(args):
         return lambda: jackbox.simulate(scene, t_end=args.t_end, record_every=1_000_000)
     kw = dict(perturb={"theta_jack": 1e-6}, t_end=args.t_end, seed=0, lanes=args.lanes)
     if args.what == "chaos":
-        return lambda: studies.chaos(scene, args.n, **kw)
+        return lambda: studies.chaos(scene, args.n, renorm=args.renorm, **kw)
     return lambda: studies.ensemble(scene, args.n, **kw)
 
 
@@ -83,6 +84,8 @@ def main(argv=None) -> int:
     parser.add_argument("--n", type=int, default=2000, help="members of a study (default: 2000)")
     parser.add_argument("--t-end", type=float, default=10.0)
     parser.add_argument("--lanes", action="store_true", help="a study's members in lanes")
+    parser.add_argument("--renorm", type=float, default=None,
+                        help="chaos: seconds between renormalisations (default: the study's, 100 steps)")
     parser.add_argument("--seconds", type=float, default=4.0, help="how long perf records (default: 4)")
     parser.add_argument("--top", type=int, default=25, help="functions to list (default: 25)")
     args = parser.parse_args(argv)

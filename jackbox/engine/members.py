@@ -83,7 +83,7 @@ def grown(log):
     return new_log(2 * log.t.shape[0])
 
 
-@njit(cache=True, no_cpython_wrapper=True)
+@njit(cache=True, no_cpython_wrapper=True, _nrt=False)
 def copy_to(dst, src):
     """dst[:] = src, as a loop (Numba compiles a slice assignment's shape check and error path at each use)."""
     for i in range(src.shape[0]):
@@ -324,7 +324,7 @@ def twin_distance(dq, dqd, scale, n):
     return math.sqrt(d0)
 
 
-@njit(cache=True, no_cpython_wrapper=True)
+@njit(cache=True, no_cpython_wrapper=True, _nrt=False)
 def renormalise(model, t, q, qd, qt, qdt, dq, dqd, scale, d0, rest_t, p, tol, gv):
     """Benettin's renormalisation: the twin put back at distance d0 along its separation; returns log(d / d0).
 
@@ -355,7 +355,7 @@ def renormalise(model, t, q, qd, qt, qdt, dq, dqd, scale, d0, rest_t, p, tol, gv
     return out
 
 
-@njit(cache=True, no_cpython_wrapper=True)
+@njit(cache=True, no_cpython_wrapper=True, _nrt=False)
 def needs_update(model, t, q, qd, p, tol, rest, gv):
     """Whether the contact update (:func:`~.modes.update_contacts`) could change anything for a member moved to (t, q, qd).
 
@@ -423,7 +423,7 @@ CHUNK = 64
 ALONE = 1
 
 
-@njit(cache=True, no_cpython_wrapper=True)
+@njit(cache=True, no_cpython_wrapper=True, _nrt=False)
 def is_free(rest, C):
     """Whether a member's modes leave it in free flight: no contact held, the exact method on, no run of dense steps.
 
@@ -436,7 +436,7 @@ def is_free(rest, C):
     return True
 
 
-@njit(cache=True, no_cpython_wrapper=True)
+@njit(cache=True, no_cpython_wrapper=True, _nrt=False)
 def take_lane(S, lane, q, qd):
     """The q and qd of lane ``lane`` (rows 0 .. 11 of a block's state) into q, qd."""
     W = LANES
@@ -445,7 +445,7 @@ def take_lane(S, lane, q, qd):
         qd[d] = S[(6 + d) * W + lane]
 
 
-@njit(cache=True, no_cpython_wrapper=True)
+@njit(cache=True, no_cpython_wrapper=True, _nrt=False)
 def put_lane(S, lane, q, qd):
     """q, qd into lane ``lane`` of a block's state; its bound on the gaps to be computed again."""
     W = LANES
@@ -467,6 +467,15 @@ def fold_impulses(S, lane, tally):
             tally[TALLY_FIRST] = S[FIRST_ROW * W + lane]
         tally[TALLY_IMPULSES] += c
         S[IMPULSE_ROW * W + lane] = 0.0
+
+
+@njit(cache=True, no_cpython_wrapper=True, _nrt=False)
+def fold_lanes(S, tallies):
+    """:func:`fold_impulses` for every lane of a block, into its row of ``tallies``. No references counted: a
+    row taken in a function that counts them costs an increment and a decrement of the array's count, atomic
+    operations (a chaos study's blocks, folding at each renormalisation, spent a tenth of their time in them)."""
+    for lane in range(LANES):
+        fold_impulses(S, lane, tallies[lane])
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -639,8 +648,7 @@ def block_to(model, exact, stages, B, p, tol, tab, dt, i, stop, out, log):
             if back[lane] >= 0:
                 put_lane(S, lane, B.held_q[lane], B.held_qd[lane])
         i = end
-    for lane in range(W):
-        fold_impulses(S, lane, B.tallies[lane])
+    fold_lanes(S, B.tallies)
     return log
 
 
@@ -803,6 +811,7 @@ def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, P, tol, tab, dt, n_st
         log = start_lane(model, exact, stages, B, PAIRS + r, qt, qdt, P[j], tol, dt, out, log)
     i = 0
     n_ended = 0
+    S, alive, rests, tallies = B.S, B.alive, B.rests, B.tallies     # (each B.x read in the loop counts a reference)
     while i < n_steps and n_ended < count:
         stop = min(i + renorm_steps, n_steps)
         log = block_to(model, exact, stages, B, p, tol, tab, dt, i, stop, out, log)
@@ -810,25 +819,21 @@ def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, P, tol, tab, dt, n_st
             if ended[r]:
                 continue
             tw = PAIRS + r
-            if not B.alive[r] or not B.alive[tw]:
+            if not alive[r] or not alive[tw]:
                 ended[r] = 1
                 n_ended += 1
-                if not B.alive[r]:          # the reference stopped: its twin's interval is not run
+                if not alive[r]:            # the reference stopped: its twin's interval is not run
                     status[r], step[r], step_t[r] = B.status[r], B.reached[r], i
-                    copy_to(B.tallies[tw], kept[r])
+                    copy_to(tallies[tw], kept[r])
                 else:
                     status[r], step[r], step_t[r] = B.status[tw], stop, B.reached[tw]
-                B.alive[r] = 0
-                B.alive[tw] = 0
+                alive[r] = 0
+                alive[tw] = 0
                 continue
             j = first + r
-            take_lane(B.S, r, q, qd)
-            take_lane(B.S, tw, qt, qdt)
-            stretch[j, k[r]] = renormalise(model, 0.0 + stop * dt, q, qd, qt, qdt, DQ[j], DQD[j], scale, d0[r],
-                                           B.rests[tw], P[j], tol, gv)
-            put_lane(B.S, tw, qt, qdt)
+            stretch[j, k[r]] = renormalise_pair(model, 0.0 + stop * dt, S, r, tw, q, qd, qt, qdt, DQ, DQD, j,
+                                                scale, d0[r], rests, P, tol, gv, kept, tallies)
             k[r] += 1
-            copy_to(kept[r], B.tallies[tw])
         i = stop
     for r in range(count):
         j = first + r
@@ -846,6 +851,20 @@ def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, P, tol, tab, dt, n_st
         for d in range(n):
             fin[j, TWIN_FIN + d] = q[d]
             fin[j, TWIN_FIN + 6 + d] = qd[d]
+
+
+@njit(cache=True, no_cpython_wrapper=True, _nrt=False)
+def renormalise_pair(model, t, S, r, tw, q, qd, qt, qdt, DQ, DQD, j, scale, d0, rests, P, tol, gv, kept, tallies):
+    """Pair r of a twin block (its reference in lane r, its twin in lane tw) renormalised at time t
+    (:func:`renormalise`, member j's offsets and parameters): the twin's lane moved, its tally kept as the next
+    interval's start (kept[r]). Returns log(d / d0). Its rows taken here, where no references are counted
+    (:func:`fold_lanes`)."""
+    take_lane(S, r, q, qd)
+    take_lane(S, tw, qt, qdt)
+    out = renormalise(model, t, q, qd, qt, qdt, DQ[j], DQD[j], scale, d0, rests[tw], P[j], tol, gv)
+    put_lane(S, tw, qt, qdt)
+    copy_to(kept[r], tallies[tw])
+    return out
 
 
 @njit(cache=True)
