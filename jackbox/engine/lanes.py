@@ -173,8 +173,9 @@ def calm(t, t_next, q, qd, qn, vn, p, tol, ext):
 
 def calm_by_bounds(t, t_next, qd, vn, bound_a, bound_b, tol):
     """Whether :func:`calm` would say yes with no gap read: bounds on every gap at both ends of the step (the
-    lane's, :func:`lane_bound`'s at least T_GAP below the model's ``phi_s``) above what its near test
-    asks (the exact loop's: a gap within reach and below ``gaps.dip_free``), so none is near. A NaN says no.
+    lane's: :func:`lane_bound`'s, within a few eps of the model's ``phi_s``, or lower), less T_GAP, above
+    what its near test asks (the exact loop's: a gap within reach and below ``gaps.dip_free``), so none is
+    near. A NaN says no.
     """
     h = t_next - t
     half = 0.5 * tol[_T_EVENT_L]
