@@ -430,8 +430,8 @@ def test_a_lane_near_a_wall_is_calm_by_its_bounds_only_where_the_exact_loop_find
     below does not, nor a NaN.
     """
     from jackbox import api
-    from jackbox.engine.gaps import cubic_error
-    from jackbox.engine.records import T_BOXV, T_EVENT, T_GAP, T_SPEED
+    from jackbox.engine.gaps import cubic_error, speed_bound
+    from jackbox.engine.records import T_EVENT, T_GAP
 
     scene = jackbox.load_scene(write_scene(tmp_path, SPINNER)) if name == "spinner" else jackbox.load_scene(name)
     t_end = 2.0 if name == "spinner" else 8.0
@@ -449,9 +449,10 @@ def test_a_lane_near_a_wall_is_calm_by_its_bounds_only_where_the_exact_loop_find
     pt, tl = space["params_of"](run.p), space["tolerances_of"](tol)
     sc = np.zeros(LANES)
     dt, p = run.dt, run.p
+    bound_speed = njit(speed_bound.py_func)
 
     def speed(v):
-        return tol[T_BOXV] + sum(abs(v[d]) * tol[T_SPEED + d] for d in range(6))
+        return bound_speed(v, tol)
 
     near = yes = 0
     for i in range(len(traj.t) - 1):
