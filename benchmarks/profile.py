@@ -4,6 +4,7 @@
     python benchmarks/profile.py chaos shaken --lanes [--renorm 0.01] ...
     python benchmarks/profile.py run drop [--t-end 10] ...
     python benchmarks/profile.py held corner        (or riding: jackbox bench's held stretches)
+    python benchmarks/profile.py ensemble shaken --lanes --annotate lanes.lanes   (its hot instructions)
 
 ``perf`` shows the machine code Numba compiled as ``[JIT]`` addresses without
 names. This script compiles everything in this process (a cache folder of its
@@ -17,6 +18,15 @@ function are readable in them (``jackbox6engine6events10cubic_root``). Needs
 ``perf`` and permission to use it (``/proc/sys/kernel/perf_event_paranoid``
 at 2 or below for one's own processes). Nothing is written into the
 repository.
+
+``--annotate NAME`` also lays the samples that fell inside the first
+function whose readable name, less a model part's hash, ends with NAME
+(``lanes.lanes``, ``lane_event.crossing_lane``, ``ride.ride``) over
+``objdump``'s disassembly of its machine code (read from this process's
+memory): its samples by 512-byte stretch (a loop inlined twice shows as
+two stretches), then the instructions that took at least ``--min-share`` of
+them, each with the three before it (a sample lands an instruction or two
+after the one that stalled).
 """
 
 from __future__ import annotations
@@ -34,8 +44,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def write_perf_map(path: Path) -> int:
-    """perf's map of the functions in Numba's execution engine (those compiled in this process); returns how many."""
+def jit_functions() -> list[tuple[int, int, str]]:
+    """(start, size, mangled name) of each function in Numba's execution engine, by address."""
     from numba.core.registry import cpu_target
 
     engine = cpu_target.target_context.codegen()._engine
@@ -48,11 +58,72 @@ def write_perf_map(path: Path) -> int:
         if address:
             found.append((address, name))
     found.sort()
+    # a function's size: up to the next one (the last: 4 KiB)
+    return [(address, after - address, name)
+            for (address, name), (after, _) in zip(found, found[1:] + [(found[-1][0] + 4096, "")])]
+
+
+def write_perf_map(path: Path, functions) -> int:
+    """perf's map of the functions compiled in this process; returns how many."""
     with path.open("w") as f:
-        # a function's size: up to the next one (the last: 4 KiB)
-        for (address, name), (after, _) in zip(found, found[1:] + [(found[-1][0] + 4096, "")]):
-            f.write(f"{address:x} {after - address:x} {name[:240]}\n")
-    return len(found)
+        for address, size, name in functions:
+            f.write(f"{address:x} {size:x} {name[:240]}\n")
+    return len(functions)
+
+
+def annotate(perf: str, data: Path, functions, name: str, min_share: float, out=sys.stdout) -> None:
+    """The hot instructions of the function named ``...name``: perf's samples over objdump of its bytes."""
+    import ctypes
+    from collections import Counter
+
+    # (a model's binding parts are modules named with a hash: jackbox_model_lanes_41a93c0c913b22f1)
+    chosen = [f for f in functions if re.sub(r"_[0-9a-f]{16}\b", "", demangled(f[2])).endswith(name)]
+    if not chosen:
+        print(f"--annotate: no compiled function's name ends with {name!r}", file=out)
+        return
+    start, size, mangled = chosen[0]
+    script = subprocess.run([perf, "script", "-i", str(data), "-F", "ip"], capture_output=True, text=True)
+    ips = Counter(int(line, 16) for line in script.stdout.split() if line.strip())
+    inside = {ip - start: c for ip, c in ips.items() if start <= ip < start + size}
+    total = sum(inside.values())
+    print(f"\n{demangled(mangled)}: {size} bytes, {total} samples of {sum(ips.values())}", file=out)
+    if not total:
+        return
+    objdump = shutil.which("objdump")
+    if objdump is None:
+        print("objdump is not installed (Debian: binutils)", file=out)
+        return
+    with tempfile.NamedTemporaryFile(suffix=".bin") as f:
+        f.write(ctypes.string_at(start, size))
+        f.flush()
+        text = subprocess.run([objdump, "-D", "-b", "binary", "-m", "i386:x86-64", "--no-show-raw-insn", f.name],
+                              capture_output=True, text=True).stdout
+    lines = []
+    for line in text.splitlines():
+        m = re.match(r"\s*([0-9a-f]+):\s+(.*)", line)
+        if m:
+            lines.append((int(m.group(1), 16), m.group(2)))
+    # where in the function: its samples by 512-byte stretch
+    buckets = Counter()
+    for offset, c in inside.items():
+        buckets[offset // 512] += c
+    print("by stretch of 512 bytes (offset: share):", file=out)
+    print("  " + "  ".join(f"{512 * b:x}: {100 * c / total:.1f}%" for b, c in sorted(buckets.items())
+                           if c >= 0.01 * total), file=out)
+    # perf's ip is the instruction after the one that was executing (skid): the count goes to where it lands
+    shown = set()
+    for i, (offset, insn) in enumerate(lines):
+        c = inside.get(offset, 0)
+        if c >= min_share * total:
+            shown.update(range(max(0, i - 3), i + 1))
+    last = None
+    for i in sorted(shown):
+        offset, insn = lines[i]
+        if last is not None and i != last + 1:
+            print("      ...", file=out)
+        c = inside.get(offset, 0)
+        print(f"{100 * c / total:6.2f}%  {offset:6x}  {insn}", file=out)
+        last = i
 
 
 def workload(args):
@@ -88,6 +159,10 @@ def main(argv=None) -> int:
                         help="chaos: seconds between renormalisations (default: the study's, 100 steps)")
     parser.add_argument("--seconds", type=float, default=4.0, help="how long perf records (default: 4)")
     parser.add_argument("--top", type=int, default=25, help="functions to list (default: 25)")
+    parser.add_argument("--annotate", metavar="NAME", default=None,
+                        help="also the hot instructions of the function whose name ends with NAME (e.g. lanes.lanes)")
+    parser.add_argument("--min-share", type=float, default=0.005,
+                        help="--annotate: instructions with at least this share of its samples (default: 0.005)")
     args = parser.parse_args(argv)
     if args.what == "held" and args.scene not in ("riding", "corner"):
         parser.error(f"held: riding or corner, not {args.scene!r}")
@@ -102,7 +177,8 @@ def main(argv=None) -> int:
     job = workload(args)
     job()                                    # compiles everything, here
     map_file = Path(f"/tmp/perf-{os.getpid()}.map")
-    n = write_perf_map(map_file)
+    functions = jit_functions()
+    n = write_perf_map(map_file, functions)
     data = Path(os.environ["JACKBOX_CACHE_DIR"]) / "perf.data"
     record = subprocess.Popen([perf, "record", "-q", "-F", "4000", "-o", str(data), "-p", str(os.getpid())],
                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
@@ -129,6 +205,8 @@ def main(argv=None) -> int:
             dso, _, symbol = rest.partition("[k]")
         dso = "jit" if dso.strip().startswith("[JIT]") else dso.strip()
         print(f"{share.strip():>6}%  {dso[:24]:<24} {demangled(symbol.split()[0] if symbol.split() else '?')}")
+    if args.annotate:
+        annotate(perf, data, functions, args.annotate, args.min_share)
     map_file.unlink(missing_ok=True)
     shutil.rmtree(os.environ["JACKBOX_CACHE_DIR"], ignore_errors=True)
     return 0
