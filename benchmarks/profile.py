@@ -71,28 +71,10 @@ def write_perf_map(path: Path, functions) -> int:
     return len(functions)
 
 
-def annotate(perf: str, data: Path, functions, name: str, min_share: float, out=sys.stdout) -> None:
-    """The hot instructions of the function named ``...name``: perf's samples over objdump of its bytes."""
+def disassembly(start: int, size: int, objdump: str) -> list[tuple[int, str]]:
+    """(offset, instruction) of the machine code at ``start`` in this process, by ``objdump``."""
     import ctypes
-    from collections import Counter
 
-    # (a model's binding parts are modules named with a hash: jackbox_model_lanes_41a93c0c913b22f1)
-    chosen = [f for f in functions if re.sub(r"_[0-9a-f]{16}\b", "", demangled(f[2])).endswith(name)]
-    if not chosen:
-        print(f"--annotate: no compiled function's name ends with {name!r}", file=out)
-        return
-    start, size, mangled = chosen[0]
-    script = subprocess.run([perf, "script", "-i", str(data), "-F", "ip"], capture_output=True, text=True)
-    ips = Counter(int(line, 16) for line in script.stdout.split() if line.strip())
-    inside = {ip - start: c for ip, c in ips.items() if start <= ip < start + size}
-    total = sum(inside.values())
-    print(f"\n{demangled(mangled)}: {size} bytes, {total} samples of {sum(ips.values())}", file=out)
-    if not total:
-        return
-    objdump = shutil.which("objdump")
-    if objdump is None:
-        print("objdump is not installed (Debian: binutils)", file=out)
-        return
     with tempfile.NamedTemporaryFile(suffix=".bin") as f:
         f.write(ctypes.string_at(start, size))
         f.flush()
@@ -103,7 +85,48 @@ def annotate(perf: str, data: Path, functions, name: str, min_share: float, out=
         m = re.match(r"\s*([0-9a-f]+):\s+(.*)", line)
         if m:
             lines.append((int(m.group(1), 16), m.group(2)))
-    # where in the function: its samples by 512-byte stretch
+    return lines
+
+
+def hot_lines(lines, samples: dict, min_share: float, before: int = 3) -> list[str]:
+    """The instructions with at least ``min_share`` of the samples (offset: count), each with ``before`` ahead of
+    it, as text (``share  offset  instruction``, "..." where lines are left out)."""
+    total = sum(samples.values())
+    shown = set()
+    for i, (offset, _) in enumerate(lines):
+        if total and samples.get(offset, 0) >= min_share * total:
+            shown.update(range(max(0, i - before), i + 1))
+    out, last = [], None
+    for i in sorted(shown):
+        offset, insn = lines[i]
+        if last is not None and i != last + 1:
+            out.append("      ...")
+        out.append(f"{100 * samples.get(offset, 0) / total:6.2f}%  {offset:6x}  {insn}")
+        last = i
+    return out
+
+
+def annotate(perf: str, data: Path, functions, name: str, min_share: float, out=sys.stdout) -> None:
+    """The hot instructions of the function named ``...name``: perf's samples over objdump of its bytes."""
+    from collections import Counter
+
+    # (a model's binding parts are modules named with a hash: jackbox_model_lanes_41a93c0c913b22f1)
+    chosen = [f for f in functions if re.sub(r"_[0-9a-f]{16}\b", "", demangled(f[2])).endswith(name)]
+    if not chosen:
+        print(f"--annotate: no compiled function's name ends with {name!r}", file=out)
+        return
+    start, size, mangled = chosen[0]
+    script = subprocess.run([perf, "script", "-i", str(data), "-F", "ip"], capture_output=True, text=True)
+    ips = Counter(int(word, 16) for word in script.stdout.split())
+    inside = {ip - start: c for ip, c in ips.items() if start <= ip < start + size}
+    total = sum(inside.values())
+    print(f"\n{demangled(mangled)}: {size} bytes, {total} samples of {sum(ips.values())}", file=out)
+    if not total:
+        return
+    objdump = shutil.which("objdump")
+    if objdump is None:
+        print("objdump is not installed (Debian: binutils)", file=out)
+        return
     buckets = Counter()
     for offset, c in inside.items():
         buckets[offset // 512] += c
@@ -111,19 +134,7 @@ def annotate(perf: str, data: Path, functions, name: str, min_share: float, out=
     print("  " + "  ".join(f"{512 * b:x}: {100 * c / total:.1f}%" for b, c in sorted(buckets.items())
                            if c >= 0.01 * total), file=out)
     # perf's ip is the instruction after the one that was executing (skid): the count goes to where it lands
-    shown = set()
-    for i, (offset, insn) in enumerate(lines):
-        c = inside.get(offset, 0)
-        if c >= min_share * total:
-            shown.update(range(max(0, i - 3), i + 1))
-    last = None
-    for i in sorted(shown):
-        offset, insn = lines[i]
-        if last is not None and i != last + 1:
-            print("      ...", file=out)
-        c = inside.get(offset, 0)
-        print(f"{100 * c / total:6.2f}%  {offset:6x}  {insn}", file=out)
-        last = i
+    print("\n".join(hot_lines(disassembly(start, size, objdump), inside, min_share)), file=out)
 
 
 def workload(args):

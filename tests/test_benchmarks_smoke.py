@@ -8,9 +8,12 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -229,7 +232,8 @@ def test_profile_names_the_machine_code_numba_compiled(tmp_path):
     def tripled(x):
         return 3.0 * x
 
-    count = profile.write_perf_map(tmp_path / "perf.map")
+    functions = profile.jit_functions()
+    count = profile.write_perf_map(tmp_path / "perf.map", functions)
     rows = [line.split(" ", 2) for line in (tmp_path / "perf.map").read_text().splitlines()]
     assert count == len(rows) > 0
     starts = [int(start, 16) for start, _, _ in rows]
@@ -242,6 +246,18 @@ def test_profile_names_the_machine_code_numba_compiled(tmp_path):
     assert profile.demangled("_ZN7jackbox6engine6events10cubic_rootB3v80B38c8tJTIeFIjxB2IKSgIdddddd") == \
         "jackbox.engine.events.cubic_root"
     assert profile.demangled("__sin_fma") == "__sin_fma"
+    # --annotate's pieces: the cfunc's bytes disassembled hold its multiply, and the hot lines come with the
+    # instructions before them
+    objdump = shutil.which("objdump")
+    if objdump is None:
+        pytest.skip("objdump is not installed")
+    start, size = next((start, size) for start, size in mine if start <= address < start + size)
+    lines = profile.disassembly(start, size, objdump)
+    assert any("mulsd" in insn for _, insn in lines)
+    offsets = [offset for offset, _ in lines]
+    hot = profile.hot_lines(lines, {offsets[4]: 3, offsets[0]: 1}, min_share=0.5)
+    assert len(hot) == 4 and hot[-1].startswith(" 75.00%") and hot[0].startswith("  0.00%")
+    assert profile.hot_lines(lines, {offsets[4]: 1}, 0.5, before=0)[0].split()[1] == f"{offsets[4]:x}"
 
 
 def test_trip_quick_mode(tmp_path):
