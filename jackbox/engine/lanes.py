@@ -59,6 +59,7 @@ from jackbox.engine.records import (BOUND_ROW as _BOUND, FIRST_ROW as _FIRST, GA
                                     SCRATCH_ROW as _SCRATCH,
                                     SPEED_ROW as _SPEED, T_EVENT as _T_EVENT_L,
                                     T_GAP as _T_GAP_L, T_VREST as _T_VREST_L)
+from jackbox.engine.stacked import stacked as _stacked
 from jackbox.engine.tolerances import rest_speed as _rest_speed
 
 # sin and cos: Cody-Waite reduction by pi/2 (its first part has 33 bits, so k * _PIO2_HI is exact for
@@ -141,8 +142,8 @@ def calm(t, t_next, q, qd, qn, vn, p, tol, ext):
     h = t_next - t
     half = 0.5 * tol[_T_EVENT_L]
     deep = half + tol[_T_EVENT_L]
-    ga = phi_s(t, q, p)
-    gb = phi_s(t_next, qn, p)
+    ga = _stacked(phi_s(t, q, p))     # (read by a run-time index: see jackbox.engine.stacked)
+    gb = _stacked(phi_s(t_next, qn, p))
     band = _step_reach(qd, vn, h, tol)
     dip = _cubic_error(qd, vn, h, tol)
     clear = _dip_free(band, dip, tol)       # (the exact loop's test for a look at the rates)
@@ -155,8 +156,8 @@ def calm(t, t_next, q, qd, qn, vn, p, tol, ext):
             near = True
     if not near:
         return True, smallest
-    va = gap_rate_s(t, q, qd, p)
-    vb = gap_rate_s(t_next, qn, vn, p)
+    va = _stacked(gap_rate_s(t, q, qd, p))
+    vb = _stacked(gap_rate_s(t_next, qn, vn, p))
     tiny = 1e-3 * tol[_T_VREST_L]
     for k in range(N_CONTACT):
         if ga[k] + half < 0.0 and va[k] >= -tiny:
@@ -261,15 +262,17 @@ def crossing_lane(ta, tb, q, qd, qb, vb, ga, gb, va, vr, p, tol, ext):
     half = 0.5 * tol[_T_EVENT_L]
     deep = half + tol[_T_EVENT_L]
     band = _step_reach(qd, vb, h, tol)
+    gas, gbs = _stacked(ga), _stacked(gb)       # (read by a run-time index: see jackbox.engine.stacked)
     near = False
     for k in range(N_CONTACT):
-        if min(ga[k], gb[k]) + deep < band:
+        if min(gas[k], gbs[k]) + deep < band:
             near = True
     if not near:
         return NO_EVENT, -1.0, q, qd
+    vas, vrs = _stacked(va), _stacked(vr)
     tiny = 1e-3 * tol[_T_VREST_L]
     for k in range(N_CONTACT):
-        if ga[k] + half < 0.0 and va[k] >= -tiny:
+        if gas[k] + half < 0.0 and vas[k] >= -tiny:
             return ALONE_CASE, -1.0, q, qd
     dip = _cubic_error(qd, vb, h, tol)
     tta = accel_time_s(ta, p)
@@ -279,8 +282,8 @@ def crossing_lane(ta, tb, q, qd, qb, vb, ga, gb, va, vr, p, tol, ext):
     best_k = -1
     t_hi = tb
     for k in range(N_CONTACT):
-        da, db = h * va[k], h * vr[k]
-        fa, fb = ga[k] + half, gb[k] + half
+        da, db = h * vas[k], h * vrs[k]
+        fa, fb = gas[k] + half, gbs[k] + half
         if min(fa, fb) >= band:
             continue
         sr = -1.0
@@ -325,8 +328,9 @@ def crossing_lane(ta, tb, q, qd, qb, vb, ga, gb, va, vr, p, tol, ext):
         return NO_EVENT, -1.0, q, qd
     if at != best_l:
         qa, vat, gat = probe(ta, tta, q, qd, best_l, p)
+    gats = _stacked(gat)
     for k in range(N_CONTACT):
-        if gat[k] + half < 0.0:
+        if gats[k] + half < 0.0:
             return ALONE_CASE, -1.0, q, qd
     return TAKEN, best_l, qa, vat
 
@@ -346,6 +350,7 @@ def impact_lane(t, q, qd, p, tol, w, vrest, e_wall, e_ground):
     steps, but one a step never makes a run.)
     """
     g, v = gaps_rates_at(t, q, qd, p)
+    gs, vs = _stacked(g), _stacked(v)       # (read by a run-time index: see jackbox.engine.stacked)
     dt_res = _time_resolution(t)
     pose = contact_pose_s(t, q, p)
     a = accel_s(t, q, qd, p, accel_time_s(t, p))
@@ -355,11 +360,11 @@ def impact_lane(t, q, qd, p, tol, w, vrest, e_wall, e_ground):
     kh = -1
     rh = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     for k in range(N_CONTACT):
-        if not _within_reach(g[k], v[k], dt_res, tol):
+        if not _within_reach(gs[k], vs[k], dt_res, tol):
             continue
         r = row_at(t, q, qd, p, pose, k)
         s = row_dot_s(r, a)
-        rise = max(-half - g[k], 0.0) + tol[_T_EVENT_L]
+        rise = max(-half - gs[k], 0.0) + tol[_T_EVENT_L]
         press = max(-s, 0.0)
         vrest[k] = _rest_speed(tol, rise, press, e_wall if k < N_WALL_CONTACT else e_ground)
         vk = r[8]
@@ -386,7 +391,7 @@ def impact_lane(t, q, qd, p, tol, w, vrest, e_wall, e_ground):
     qd = respond_s(qd, w, rh, lam)
     logged = 1 if lam * A > tiny else 0
     for k in range(N_CONTACT):      # the rows again at the new rates: none comes to rest
-        if not _within_reach(g[k], v[k], dt_res, tol):
+        if not _within_reach(gs[k], vs[k], dt_res, tol):
             continue
         if abs(row_at(t, q, qd, p, pose, k)[8]) < vrest[k]:
             return False, qd, 0, g
@@ -407,13 +412,14 @@ def event_lane(t, t_next, dt, q, qd, qn, vn, p, tol, sc, e_wall, e_ground):
     ext = sc[0:2]
     ga, va = gaps_rates_at(t, q, qd, p)
     gb, vr = gaps_rates_at(t_next, qn, vn, p)
-    low = gb[0]
+    gas, gbs = _stacked(ga), _stacked(gb)       # (read by a run-time index: see jackbox.engine.stacked)
+    low = gbs[0]
     for k in range(N_CONTACT):
-        low = min(low, gb[k])
+        low = min(low, gbs[k])
     band = _step_reach(qd, vn, dt, tol) - 0.5 * tol[_T_EVENT_L]
     quiet = True
     for k in range(N_CONTACT):
-        if min(ga[k], gb[k]) < band:
+        if min(gas[k], gbs[k]) < band:
             quiet = False
     if quiet:
         return NO_EVENT, qn, vn, 0, t, low
@@ -432,9 +438,10 @@ def event_lane(t, t_next, dt, q, qd, qn, vn, p, tol, sc, e_wall, e_ground):
     what, _, _, _ = crossing_lane(te, t_next, qs, vs, qb, vb, ge, gb, gap_rate_s(te, qs, vs, p), vr, p, tol, ext)
     if what != NO_EVENT:
         return ALONE_CASE, qn, vn, 0, t, low
-    low = gb[0]
+    gbs = _stacked(gb)
+    low = gbs[0]
     for k in range(N_CONTACT):
-        low = min(low, gb[k])
+        low = min(low, gbs[k])
     return TAKEN, qb, vb, logged, te, low
 
 

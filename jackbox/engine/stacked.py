@@ -1,0 +1,28 @@
+"""A tuple's elements by an index known only at run time, without a switch over them.
+
+Numba reads ``t[k]`` of a homogeneous tuple with a run-time ``k`` through a
+``switch`` over its elements; in a loop over a model's contacts whose body is
+too large for LLVM to unroll whole (a lane's near test, its crossing search)
+that stays an indirect jump a read, and perf put a sixth of those functions'
+samples on the jump tables' targets. :func:`stacked` stores the tuple once
+into the calling function's stack frame; ``stacked(t)[k]`` is then one load,
+the same number.
+"""
+
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+
+@intrinsic
+def stacked(typingctx, tup):
+    """A pointer to a copy of the homogeneous tuple ``tup`` in the calling function's frame: ``stacked(t)[k]``
+    is ``t[k]``. The copy lives as long as that function's call (never return the pointer)."""
+    if not isinstance(tup, types.UniTuple):
+        return None
+
+    def codegen(context, builder, signature, args):
+        at = cgutils.alloca_once_value(builder, args[0])        # [n x T] in the entry block, stored here
+        return builder.bitcast(at, context.get_value_type(tup.dtype).as_pointer())
+
+    return types.CPointer(tup.dtype)(tup), codegen
