@@ -26,7 +26,7 @@ def _switch_all(t, order):
 
 def test_a_stacked_tuple_reads_what_the_tuple_holds_at_every_index():
     rng = np.random.default_rng(3)
-    t = tuple(float(x) for x in rng.normal(size=20)) 
+    t = tuple(float(x) for x in rng.normal(size=20))
     t = t[:5] + (np.nan, -0.0, np.inf) + t[8:]
     order = rng.permutation(np.repeat(np.arange(20), 3))
     got, want = _read_all(t, order), _switch_all(t, order)
