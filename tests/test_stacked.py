@@ -35,7 +35,9 @@ def test_a_stacked_tuple_reads_what_the_tuple_holds_at_every_index():
     assert np.array_equal(got, np.array(t)[order], equal_nan=True)
 
 
-def test_only_a_homogeneous_tuple_is_stacked():
+def test_only_a_homogeneous_tuple_is_stacked_and_python_reads_the_tuple_itself():
+    assert stacked((1.0, 2.0))[1] == 2.0         # (numba-cuda's simulator runs it as Python)
+
     @numba.njit(cache=False)
     def mixed(k):
         return stacked((1.0, 2))[k]

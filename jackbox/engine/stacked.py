@@ -11,18 +11,31 @@ the same number.
 
 from numba import types
 from numba.core import cgutils
-from numba.extending import intrinsic
+from numba.extending import intrinsic, overload
+
+
+def stacked(tup):
+    """``stacked(t)[k]`` is ``t[k]``: in Python (and numba-cuda's simulator) the tuple itself; compiled, a
+    pointer to a copy of the homogeneous tuple in the calling function's frame (never return it)."""
+    return tup
 
 
 @intrinsic
-def stacked(typingctx, tup):
-    """A pointer to a copy of the homogeneous tuple ``tup`` in the calling function's frame: ``stacked(t)[k]``
-    is ``t[k]``. The copy lives as long as that function's call (never return the pointer)."""
+def _on_stack(typingctx, tup):
+    """The tuple stored into the frame of the function whose code this is (an alloca in its entry block)."""
     if not isinstance(tup, types.UniTuple):
         return None
 
     def codegen(context, builder, signature, args):
-        at = cgutils.alloca_once_value(builder, args[0])        # [n x T] in the entry block, stored here
+        at = cgutils.alloca_once_value(builder, args[0])
         return builder.bitcast(at, context.get_value_type(tup.dtype).as_pointer())
 
     return types.CPointer(tup.dtype)(tup), codegen
+
+
+# inlined in Numba's IR, so that the alloca is in the caller's frame (a call would return a pointer into its own)
+@overload(stacked, inline="always")
+def _stacked(tup):
+    if isinstance(tup, types.UniTuple):
+        return lambda tup: _on_stack(tup)
+    return None
