@@ -25,7 +25,7 @@ from .draws import START, TWIN, draw_normal, draw_uniform
 from .gaps import speed_bound
 from .modes import time_resolution, within_reach
 from .records import (DERIVE_CROSS, DONE, EXACT_AT, FALLBACK, IMPACT_LOG_FULL, IMPULSE, LANES, MODE_AT, MODE_SLOTS, MODEL_AT,
-                      STAGES_AT, T_BOXV, T_GAP, TIME_ROWS, WARNING, BLOCK_ROWS, BOUND_ROW, E_GROUND_ROW, E_ROW, FIRST_ROW, IMPULSE_ROW, SPEED_ROW, Events, ExactType, ModelType, Samples,
+                      STAGES_AT, T_BOXV, T_GAP, T_SPEED, TIME_ROWS, WARNING, BLOCK_ROWS, BOUND_ROW, E_GROUND_ROW, E_ROW, FIRST_ROW, IMPULSE_ROW, SPEED_ROW, Events, ExactType, ModelType, Samples,
                       StagesType, from_table, TWIN_FIN)
 from .tolerances import set_tolerances
 
@@ -291,7 +291,8 @@ def follow_twins(model, exact, stages, q, qd, qt, qdt, dq, dqd, p, tol, dt, n_st
         n_rec = 1
         if status != DONE:
             break
-        stretch[k] = renormalise(model, 0.0 + stop * dt, q, qd, qt, qdt, dq, dqd, scale, d0, rest_t, p, tol, gv)
+        stretch[k], _ = renormalise(model, 0.0 + stop * dt, q, qd, qt, qdt, dq, dqd, scale, d0, rest_t, p, tol, gv,
+                                    np.nan)
         k += 1
     for j in range(k, stretch.shape[0]):
         stretch[j] = np.nan
@@ -325,34 +326,56 @@ def twin_distance(dq, dqd, scale, n):
 
 
 @njit(cache=True, no_cpython_wrapper=True, _nrt=False)
-def renormalise(model, t, q, qd, qt, qdt, dq, dqd, scale, d0, rest_t, p, tol, gv):
-    """Benettin's renormalisation: the twin put back at distance d0 along its separation; returns log(d / d0).
+def renormalise(model, t, q, qd, qt, qdt, dq, dqd, scale, d0, rest_t, p, tol, gv, bound):
+    """Benettin's renormalisation: the twin put back at distance d0 along its separation; returns log(d / d0)
+    and a bound on the twin's gaps where it was moved to.
 
     NaN where the twins met (round-off): the twin restarts at its first
     offset. The twin's contact set is to be found again at its next step
     (its state moved, at time t), unless it is in the fallback, or it holds no
     contact and no contact is near enough for the exact loop's contact update
     to look at it (:func:`needs_update`, in the scratch gv).
+
+    bound: a bound on every gap of the twin before the move (a twin in lanes: its block's, see
+    :func:`renormalise_pair`), or NaN for none (:func:`follow_twins`). Lowered by the most the move can change a gap (each
+    coordinate's change times its lever arm, ``tol[T_SPEED + d]``: the bound ``speed_bound`` puts on
+    d gap / d q_d), it is returned, and where it clears the reach of the contact update by T_GAP more (the
+    lanes' bounds are within a few eps of the model's gaps), :func:`needs_update` is not asked: a twin
+    moved some 1e-8 off its reference in open space needs no gap computed again (NaN: none).
     """
     n, C = model.n_dof, model.n_contact
     dist = 0.0
     for d in range(n):
         dist += ((qt[d] - q[d]) / scale[d]) ** 2 + ((qdt[d] - qd[d]) / scale[n + d]) ** 2
     dist = math.sqrt(dist)
+    lowered = bound
     if not dist > 0.0:
         out = np.nan
         for d in range(n):
-            qt[d] = q[d] + dq[d]
+            moved = q[d] + dq[d]
+            lowered -= abs(moved - qt[d]) * tol[T_SPEED + d]
+            qt[d] = moved
             qdt[d] = qd[d] + dqd[d]
     else:
         out = math.log(dist / d0)
         f = d0 / dist
         for d in range(n):
-            qt[d] = q[d] + f * (qt[d] - q[d])
+            moved = q[d] + f * (qt[d] - q[d])
+            lowered -= abs(moved - qt[d]) * tol[T_SPEED + d]
+            qt[d] = moved
             qdt[d] = qd[d] + f * (qdt[d] - qd[d])
-    if rest_t[C + MODE_AT] == 0 and needs_update(model, t, qt, qdt, p, tol, rest_t, gv):
+    if rest_t[C + MODE_AT] == 0 and not lowered - tol[T_GAP] >= update_reach(t, qdt, tol) \
+            and needs_update(model, t, qt, qdt, p, tol, rest_t, gv):
         rest_t[C + MODE_AT] = -1
-    return out
+    return out, lowered
+
+
+@njit(cache=True, no_cpython_wrapper=True, _nrt=False, inline="always")
+def update_reach(t, qd, tol):
+    """Twice the farthest a gap can be from contact for the contact update to look at it at time t, at rates qd
+    (:func:`~.modes.within_reach`: T_GAP, or the travel in the time resolution at t): a bound on every gap
+    above this says that the update changes nothing."""
+    return 2.0 * (tol[T_GAP] + speed_bound(qd, tol) * time_resolution(t))
 
 
 @njit(cache=True, no_cpython_wrapper=True, _nrt=False)
@@ -375,7 +398,7 @@ def needs_update(model, t, q, qd, p, tol, rest, gv):
     if not is_free(rest, C):
         return True
     dt_res = time_resolution(t)
-    if model.clearance(t, q, p, tol) >= 2.0 * (tol[T_GAP] + speed_bound(qd, tol) * dt_res):
+    if model.clearance(t, q, p, tol) >= update_reach(t, qd, tol):
         return False
     g, v = gv[0], gv[1]
     model.phi(t, q, p, g)
@@ -858,11 +881,21 @@ def renormalise_pair(model, t, S, r, tw, q, qd, qt, qdt, DQ, DQD, j, scale, d0, 
     """Pair r of a twin block (its reference in lane r, its twin in lane tw) renormalised at time t
     (:func:`renormalise`, member j's offsets and parameters): the twin's lane moved, its tally kept as the next
     interval's start (kept[r]). Returns log(d / d0). Its rows taken here, where no references are counted
-    (:func:`fold_lanes`)."""
+    (:func:`fold_lanes`).
+
+    The twin's bound on its gaps (BOUND_ROW) is lowered by what the move can change a gap, not computed
+    again (NaN, where it was NaN: the lanes compute it), and its bound on their speed is its new rates'.
+    A bound lower than the gaps is all the lanes ask of it: it decides which of their tests a step takes,
+    never its numbers (each of those tests gives the exact loop's bits).
+    """
+    W = LANES
     take_lane(S, r, q, qd)
     take_lane(S, tw, qt, qdt)
-    out = renormalise(model, t, q, qd, qt, qdt, DQ[j], DQD[j], scale, d0, rests[tw], P[j], tol, gv)
+    out, lowered = renormalise(model, t, q, qd, qt, qdt, DQ[j], DQD[j], scale, d0, rests[tw], P[j], tol, gv,
+                               S[BOUND_ROW * W + tw])
     put_lane(S, tw, qt, qdt)
+    S[BOUND_ROW * W + tw] = lowered
+    S[SPEED_ROW * W + tw] = speed_bound(qdt, tol)
     copy_to(kept[r], tallies[tw])
     return out
 
