@@ -201,6 +201,9 @@ def emit_module(model: Model, command: str) -> str:
         f"N_WALL_CONTACT = {model.n_wall_contacts}",
         f"PRESCRIBED = {model.box_motion is not None}",
         f"HAS_GROUND = {model.phi.shape[0] > model.n_wall_contacts}",
+        # the accelerations are functions of time alone (free bodies under given forces): the free-flight
+        # RK4 step needs no stage states (jackbox.engine.flight.rk4_stages)
+        f"ACCEL_OF_TIME = {not any(fi.free_symbols & {*model.q, *model.qd} for fi in model.f)}",
         f"DOF_NAMES = {tuple(s.name for s in model.q)!r}",
         f"PARAM_NAMES = {tuple(s.name for s in model.p)!r}",
         f"CONSTRAINT_NAMES = {tuple(model.constraint_names)!r}",

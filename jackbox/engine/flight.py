@@ -50,7 +50,22 @@ def rk4_stages(q, qd, dt, p, ta, tta, tm, ttm, tb, ttb):
     Stage times ta, tm, tb come with their time terms ``tt* = accel_time_s(t*,
     p)`` (a shaking force's sine, 1/m), computed once per stage time.
     Returns ``(q, qd)``.
+
+    Where the model's accelerations are functions of time alone
+    (``ACCEL_OF_TIME``: free bodies under given forces, as in shaken and drop)
+    the stages' states are not needed: with a2 = a3 (one node) the step is
+    ``q + dt (qd + dt/6 (a1 + 2 a2))`` and ``qd + dt/6 (a1 + 4 a2 + a4)``, the
+    same RK4 step in fewer operations (different round-off: 24 a lane-step
+    in an ensemble block, the time terms' part shared by the block, against
+    60), the sum the tableau's weights give.
     """
+    if ACCEL_OF_TIME:
+        a1 = accel_s(ta, q, qd, p, tta)
+        a2 = accel_s(tm, q, qd, p, ttm)
+        a4 = accel_s(tb, q, qd, p, ttb)
+        h = dt / _SCALE
+        return (axpy_s(dt, axpy_s(h, axpy_s(2.0, a2, a1), qd), q),
+                axpy_s(h, axpy_s(1.0, a4, axpy_s(4.0, a2, a1)), qd))
     h2 = _NODES[1] * dt
     h3 = _NODES[2] * dt
     h4 = _NODES[3] * dt

@@ -5,7 +5,10 @@ codings of the same step: :func:`rk4` on arrays of any model's size, and the
 free-flight hot path's ``rk4_stages`` (:mod:`jackbox.engine.flight`) on
 tuples, compiled with each model so that its state stays in registers
 (routing free flight through arrays made every step 2-3x slower). The two
-give the same numbers bit for bit (tests/test_engine.py checks it).
+give the same numbers bit for bit where the accelerations depend on the
+state; where they are functions of time alone (the model's
+``ACCEL_OF_TIME``), ``rk4_stages`` sums the same tableau in fewer operations
+and the two agree to round-off (tests/test_kernel.py checks both).
 """
 
 import math
@@ -39,8 +42,9 @@ def rk4(model, t, q, qd, dt, p, q_out, qd_out, m, ws):
     four stages are left in ``ws.c[LS + stage, :m]`` (the release test reads
     them: :func:`jackbox.engine.events.first_release`), their matrix at the
     last stage in ``ws.A``. With none (m = 0) it is the model's own ``free_step``
-    on floats, the same numbers as :func:`rk4_rows` (the re-steps of an event
-    search: an impact step of shaken took 0.85 of its time so, against arrays).
+    on floats, :func:`rk4_rows`'s step (its numbers, or for accelerations of time
+    alone its sum to round-off: see the module's docstring; the re-steps of an
+    event search: an impact step of shaken took 0.85 of its time so, against arrays).
     """
     if m == 0:
         # free flight: the model's own step on floats (its stage times t + dt / 2 and t + dt are rk4_rows',
