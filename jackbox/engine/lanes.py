@@ -113,8 +113,14 @@ def tolerances_of(tol):
 
 
 def finite(qn, vn):
-    """Whether a lane's twelve numbers are all finite, without a branch (a NaN or an infinity spreads to the sum)."""
-    total = qn[0] + qn[1] + qn[2] + qn[3] + qn[4] + qn[5] + vn[0] + vn[1] + vn[2] + vn[3] + vn[4] + vn[5]
+    """Whether a lane's twelve numbers are all finite, without a branch (a NaN or an infinity spreads to the sum).
+
+    Summed as a tree, four additions deep: a chain of eleven, each waiting
+    for the one before (LLVM may not reorder them), was the lanes' step's
+    longest path (perf laid a fifth of the loop's samples on it)."""
+    q = ((qn[0] + qn[1]) + qn[2]) + ((qn[3] + qn[4]) + qn[5])
+    v = ((vn[0] + vn[1]) + vn[2]) + ((vn[3] + vn[4]) + vn[5])
+    total = q + v
     return total - total == 0.0
 
 
