@@ -55,9 +55,10 @@ def rk4_stages(q, qd, dt, p, ta, tta, tm, ttm, tb, ttb):
     (``ACCEL_OF_TIME``: free bodies under given forces, as in shaken and drop)
     the stages' states are not needed: with a2 = a3 (one node) the step is
     ``q + dt (qd + dt/6 (a1 + 2 a2))`` and ``qd + dt/6 (a1 + 4 a2 + a4)``, the
-    same RK4 step in fewer operations (different round-off: 24 a lane-step
-    in an ensemble block, the time terms' part shared by the block, against
-    60), the sum the tableau's weights give.
+    same RK4 step, the sum the tableau's weights give, in fewer operations
+    (different round-off): in an ensemble block, whose lanes share the time
+    terms' part, 24 a lane-step against 60 (the whole lane-step 48 against
+    87: ``benchmarks/lane_step.py``).
     """
     if ACCEL_OF_TIME:
         a1 = accel_s(ta, q, qd, p, tta)
