@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import platform
 import re
 import shutil
 import subprocess
@@ -58,7 +59,8 @@ def jit_functions() -> list[tuple[int, int, str]]:
         if address:
             found.append((address, name))
     found.sort()
-    # a function's size: up to the next one (the last: 4 KiB)
+    # a function's size: up to the next one (the last: 4 KiB). The last function of a module's code is given the
+    # gap after it too (the next module's code may lie a megabyte on): an upper bound, never a short one
     return [(address, after - address, name)
             for (address, name), (after, _) in zip(found, found[1:] + [(found[-1][0] + 4096, "")])]
 
@@ -71,15 +73,25 @@ def write_perf_map(path: Path, functions) -> int:
     return len(functions)
 
 
+# objdump's -m for the machine Python runs on (platform.machine())
+OBJDUMP_MACHINE = {"x86_64": "i386:x86-64", "AMD64": "i386:x86-64", "aarch64": "aarch64", "arm64": "aarch64"}
+
+
 def disassembly(start: int, size: int, objdump: str) -> list[tuple[int, str]]:
     """(offset, instruction) of the machine code at ``start`` in this process, by ``objdump``."""
     import ctypes
 
+    machine = OBJDUMP_MACHINE.get(platform.machine())
+    if machine is None:
+        raise RuntimeError(f"objdump's name for this machine ({platform.machine()}) is not known here")
     with tempfile.NamedTemporaryFile(suffix=".bin") as f:
         f.write(ctypes.string_at(start, size))
         f.flush()
-        text = subprocess.run([objdump, "-D", "-b", "binary", "-m", "i386:x86-64", "--no-show-raw-insn", f.name],
-                              capture_output=True, text=True).stdout
+        done = subprocess.run([objdump, "-D", "-b", "binary", "-m", machine, "--no-show-raw-insn", f.name],
+                              capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"objdump failed: {done.stderr.strip()}")
+    text = done.stdout
     lines = []
     for line in text.splitlines():
         m = re.match(r"\s*([0-9a-f]+):\s+(.*)", line)
