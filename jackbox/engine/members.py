@@ -336,46 +336,63 @@ def renormalise(model, t, q, qd, qt, qdt, dq, dqd, scale, d0, rest_t, p, tol, gv
     contact and no contact is near enough for the exact loop's contact update
     to look at it (:func:`needs_update`, in the scratch gv).
 
-    bound: a bound on every gap of the twin before the move (a twin in lanes: its block's, see
-    :func:`renormalise_pair`), or NaN for none (:func:`follow_twins`). Lowered by the most the move can change a gap (each
+    bound: a bound on every gap of the twin before the move, or NaN for none (:func:`follow_twins`;
+    :func:`renormalise_block` moves a block's twins with their lanes' bounds). Lowered by the most the move can change a gap (each
     coordinate's change times its lever arm, ``tol[T_SPEED + d]``: the bound ``speed_bound`` puts on
     d gap / d q_d), it is returned, and where it clears the reach of the contact update by T_GAP more (the
     lanes' bounds are within a few eps of the model's gaps), :func:`needs_update` is not asked: a twin
     moved some 1e-8 off its reference in open space needs no gap computed again (NaN: none).
     """
-    n, C = model.n_dof, model.n_contact
+    n = model.n_dof
     dist = 0.0
     for d in range(n):
-        dist += ((qt[d] - q[d]) / scale[d]) ** 2 + ((qdt[d] - qd[d]) / scale[n + d]) ** 2
+        dist += apart(q[d], qt[d], scale[d]) + apart(qd[d], qdt[d], scale[n + d])
     dist = math.sqrt(dist)
+    ok = dist > 0.0
+    f = d0 / dist if ok else 0.0
     lowered = bound
-    if not dist > 0.0:
-        out = np.nan
-        for d in range(n):
-            moved = q[d] + dq[d]
-            lowered -= abs(moved - qt[d]) * tol[T_SPEED + d]
-            qt[d] = moved
-            qdt[d] = qd[d] + dqd[d]
-    else:
-        out = math.log(dist / d0)
-        f = d0 / dist
-        for d in range(n):
-            moved = q[d] + f * (qt[d] - q[d])
-            lowered -= abs(moved - qt[d]) * tol[T_SPEED + d]
-            qt[d] = moved
-            qdt[d] = qd[d] + f * (qdt[d] - qd[d])
-    if rest_t[C + MODE_AT] == 0 and not lowered - tol[T_GAP] >= update_reach(t, qdt, tol) \
-            and needs_update(model, t, qt, qdt, p, tol, rest_t, gv):
-        rest_t[C + MODE_AT] = -1
-    return out, lowered
+    for d in range(n):
+        moved = put_back(q[d], qt[d], dq[d], f, ok)
+        lowered -= abs(moved - qt[d]) * tol[T_SPEED + d]
+        qt[d] = moved
+        qdt[d] = put_back(qd[d], qdt[d], dqd[d], f, ok)
+    mark_moved(model, t, qt, qdt, speed_bound(qdt, tol), p, tol, rest_t, gv, lowered)
+    return math.log(dist / d0) if ok else np.nan, lowered
 
 
 @njit(cache=True, no_cpython_wrapper=True, _nrt=False, inline="always")
-def update_reach(t, qd, tol):
-    """Twice the farthest a gap can be from contact for the contact update to look at it at time t, at rates qd
-    (:func:`~.modes.within_reach`: T_GAP, or the travel in the time resolution at t): a bound on every gap
-    above this says that the update changes nothing."""
-    return 2.0 * (tol[T_GAP] + speed_bound(qd, tol) * time_resolution(t))
+def apart(a, at, s):
+    """A coordinate's term of the twins' squared distance (:func:`renormalise`): its difference over its scale,
+    squared."""
+    return ((at - a) / s) ** 2
+
+
+@njit(cache=True, no_cpython_wrapper=True, _nrt=False, inline="always")
+def put_back(a, at, da, f, ok):
+    """A twin's coordinate at (:func:`renormalise`) its reference's a plus f times their difference (ok), or plus
+    its first offset da (not ok: the twins met)."""
+    return a + f * (at - a) if ok else a + da
+
+
+@njit(cache=True, no_cpython_wrapper=True, _nrt=False, inline="always")
+def mark_moved(model, t, qt, qdt, sb, p, tol, rest_t, gv, lowered):
+    """A twin moved to (t, qt, qdt) with ``lowered`` a bound on its gaps (NaN: none) and sb on their speed: its
+    contact set to be found again at its next step (``rest_t[C + MODE_AT] = -1``) unless it is in the
+    fallback or :func:`needs_update` says the update would change nothing (asked only where the bound does
+    not clear its reach)."""
+    C = model.n_contact
+    if rest_t[C + MODE_AT] == 0 and not lowered - tol[T_GAP] >= update_reach(t, sb, tol) \
+            and needs_update(model, t, qt, qdt, p, tol, rest_t, gv):
+        rest_t[C + MODE_AT] = -1
+
+
+@njit(cache=True, no_cpython_wrapper=True, _nrt=False, inline="always")
+def update_reach(t, sb, tol):
+    """Twice the farthest a gap can be from contact for the contact update to look at it at time t, with sb a
+    bound on the gaps' speed (``gaps.speed_bound`` of the rates; :func:`~.modes.within_reach`: T_GAP, or the
+    travel in the time resolution at t): a bound on every gap above this says that the update changes
+    nothing."""
+    return 2.0 * (tol[T_GAP] + sb * time_resolution(t))
 
 
 @njit(cache=True, no_cpython_wrapper=True, _nrt=False)
@@ -398,7 +415,7 @@ def needs_update(model, t, q, qd, p, tol, rest, gv):
     if not is_free(rest, C):
         return True
     dt_res = time_resolution(t)
-    if model.clearance(t, q, p, tol) >= update_reach(t, qd, tol):
+    if model.clearance(t, q, p, tol) >= update_reach(t, speed_bound(qd, tol), tol):
         return False
     g, v = gv[0], gv[1]
     model.phi(t, q, p, g)
@@ -808,6 +825,8 @@ def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, P, tol, tab, dt, n_st
     log = new_log(LOG_SIZE)
     kept = np.empty((PAIRS, TALLY))          # each twin's tally at the interval's start
     d0 = np.empty(PAIRS)
+    off = np.zeros((2 * n, PAIRS))             # each pair's first offset, a row a coordinate (renormalise_block)
+    span = np.empty(PAIRS)
     k = np.zeros(PAIRS, np.int64)            # renormalisations done
     step = np.zeros(PAIRS, np.int64)         # a reference's step reached, then its twin's (pairs that ended)
     step_t = np.zeros(PAIRS, np.int64)
@@ -829,6 +848,9 @@ def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, P, tol, tab, dt, n_st
             put_lane(B.S, PAIRS + r, qt, qdt)
             continue
         d0[r] = twin_distance(DQ[j], DQD[j], scale, n)
+        for d in range(n):
+            off[d, r] = DQ[j, d]
+            off[n + d, r] = DQD[j, d]
         copy_to(kept[r], new_tally())
         log = start_lane(model, exact, stages, B, r, q, qd, P[j], tol, dt, out, log)
         log = start_lane(model, exact, stages, B, PAIRS + r, qt, qdt, P[j], tol, dt, out, log)
@@ -852,11 +874,8 @@ def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, P, tol, tab, dt, n_st
                     status[r], step[r], step_t[r] = B.status[tw], stop, B.reached[tw]
                 alive[r] = 0
                 alive[tw] = 0
-                continue
-            j = first + r
-            stretch[j, k[r]] = renormalise_pair(model, 0.0 + stop * dt, S, r, tw, q, qd, qt, qdt, DQ, DQD, j,
-                                                scale, d0[r], rests, P, tol, gv, kept, tallies)
-            k[r] += 1
+        renormalise_block(model, 0.0 + stop * dt, S, first, count, ended, k, stretch, off, d0, scale, span, rests,
+                          P, tol, gv, qt, qdt, kept, tallies)
         i = stop
     for r in range(count):
         j = first + r
@@ -877,27 +896,61 @@ def run_twin_block(model, exact, stages, Q0, QD0, DQ, DQD, P, tol, tab, dt, n_st
 
 
 @njit(cache=True, no_cpython_wrapper=True, _nrt=False)
-def renormalise_pair(model, t, S, r, tw, q, qd, qt, qdt, DQ, DQD, j, scale, d0, rests, P, tol, gv, kept, tallies):
-    """Pair r of a twin block (its reference in lane r, its twin in lane tw) renormalised at time t
-    (:func:`renormalise`, member j's offsets and parameters): the twin's lane moved, its tally kept as the next
-    interval's start (kept[r]). Returns log(d / d0). Its rows taken here, where no references are counted
-    (:func:`fold_lanes`).
+def renormalise_block(model, t, S, first, count, ended, k, stretch, off, d0, scale, span, rests, P, tol, gv, qt,
+                      qdt, kept, tallies):
+    """The pairs of a twin block that have not ended renormalised at time t, in the block's state: each as
+    :func:`renormalise` moves a twin, the same operations on the same numbers (pair r: member first + r, its
+    reference in lane r, its twin in lane PAIRS + r; off[:, r] its first offset, d0[r] that offset's
+    length), log(d / d0) into ``stretch[j, k[r]]`` and k[r] counted, the twin's tally kept as its next
+    interval's start (kept[r]). span, qt, qdt: scratch.
 
-    The twin's bound on its gaps (BOUND_ROW) is lowered by what the move can change a gap, not computed
-    again (NaN, where it was NaN: the lanes compute it), and its bound on their speed is its new rates'.
-    A bound lower than the gaps is all the lanes ask of it: it decides which of their tests a step takes,
-    never its numbers (each of those tests gives the exact loop's bits).
+    The pairs' distances and moves first, in one loop over the block's rows with no call and no branch (the
+    processor overlaps one pair's chain of divisions and square root with the next's), for every pair up to
+    count (an ended pair's lanes are not live and nothing reads them again); then, pair by pair, the
+    logarithm, the tallies and the contact test. (A call per pair that took its two lanes out into arrays
+    and back, :func:`renormalise` on them and back again, was a tenth of a shaken chaos study in lanes by
+    perf, most of it in passing the arrays; this is 3%.) The twin's bound on its gaps (BOUND_ROW) is
+    lowered by what the move can change a gap, not computed again (NaN stays NaN: the lanes compute it),
+    and its bound on their speed is its new rates'. A bound lower than the gaps is all the lanes ask of
+    it: it decides which of their tests a step takes, never its numbers (each of those tests gives the
+    exact loop's bits).
     """
-    W = LANES
-    take_lane(S, r, q, qd)
-    take_lane(S, tw, qt, qdt)
-    out, lowered = renormalise(model, t, q, qd, qt, qdt, DQ[j], DQD[j], scale, d0, rests[tw], P[j], tol, gv,
-                               S[BOUND_ROW * W + tw])
-    put_lane(S, tw, qt, qdt)
-    S[BOUND_ROW * W + tw] = lowered
-    S[SPEED_ROW * W + tw] = speed_bound(qdt, tol)
-    copy_to(kept[r], tallies[tw])
-    return out
+    W, n, C = LANES, 6, model.n_contact
+    for r in range(count):
+        tw = PAIRS + r
+        dist = 0.0
+        for d in range(n):
+            dist += apart(S[d * W + r], S[d * W + tw], scale[d]) + apart(S[(n + d) * W + r], S[(n + d) * W + tw],
+                                                                         scale[n + d])
+        dist = math.sqrt(dist)
+        ok = dist > 0.0
+        f = d0[r] / dist if ok else 0.0
+        lowered = S[BOUND_ROW * W + tw]
+        for d in range(n):
+            at = S[d * W + tw]
+            moved = put_back(S[d * W + r], at, off[d, r], f, ok)
+            lowered -= abs(moved - at) * tol[T_SPEED + d]
+            S[d * W + tw] = moved
+            S[(n + d) * W + tw] = put_back(S[(n + d) * W + r], S[(n + d) * W + tw], off[n + d, r], f, ok)
+        S[BOUND_ROW * W + tw] = lowered
+        S[SPEED_ROW * W + tw] = speed_bound((S[n * W + tw], S[(n + 1) * W + tw], S[(n + 2) * W + tw],
+                                             S[(n + 3) * W + tw], S[(n + 4) * W + tw], S[(n + 5) * W + tw]), tol)
+        span[r] = dist
+    for r in range(count):
+        if ended[r]:
+            continue
+        j = first + r
+        tw = PAIRS + r
+        dist = span[r]
+        stretch[j, k[r]] = math.log(dist / d0[r]) if dist > 0.0 else np.nan
+        k[r] += 1
+        for x in range(TALLY):
+            kept[r, x] = tallies[tw, x]
+        if rests[tw, C + MODE_AT] == 0:
+            for d in range(n):
+                qt[d] = S[d * W + tw]
+                qdt[d] = S[(n + d) * W + tw]
+            mark_moved(model, t, qt, qdt, S[SPEED_ROW * W + tw], P[j], tol, rests[tw], gv, S[BOUND_ROW * W + tw])
 
 
 @njit(cache=True)
