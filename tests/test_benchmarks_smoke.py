@@ -262,9 +262,15 @@ def test_profile_names_the_machine_code_numba_compiled(tmp_path):
              if profile.demangled(name).endswith(".tripled") and not name.startswith("_ZN08NumbaEnv")]
     assert len(inner) == 1, inner
     start, size = int(inner[0][0], 16), int(inner[0][1], 16)
-    # (to the next function where it is near, else to the end of the page the function starts in: mapped)
-    lines = profile.disassembly(start, size if size <= 4096 else 4096 - start % 4096, objdump)
-    returns = [i for i, (_, insn) in enumerate(lines) if insn.split()[:1] in (["ret"], ["retq"])]
+    # (to the next function where it is near, else to the end of the page the function starts in, mapped, and a
+    # page more while no return is found: the function goes on into it, so it is mapped too)
+    end = size if size <= 4096 else 4096 - start % 4096
+    while True:
+        lines = profile.disassembly(start, end, objdump)
+        returns = [i for i, (_, insn) in enumerate(lines) if insn.split()[:1] in (["ret"], ["retq"])]
+        if returns or end >= size:
+            break
+        end += 4096
     assert returns, lines
     body = lines[:returns[0] + 1]
     assert any(multiply in insn for _, insn in body), lines
