@@ -335,7 +335,8 @@ def _count0(text: str) -> int:
     return int(_number(text, lambda v: v >= 0 and v == int(v), "a whole number >= 0"))
 
 
-def _pairs(values: list[str], option: str, parse) -> dict:
+def _pairs(values: list[str], option: str, parse, form: str) -> dict:
+    """NAME=VALUE pairs of an option, each value read by parse; form: what a value looks like (for the error)."""
     out = {}
     for pair in values:
         name, sep, value = pair.partition("=")
@@ -344,7 +345,7 @@ def _pairs(values: list[str], option: str, parse) -> dict:
         try:
             out[name.strip()] = parse(value.strip())
         except ValueError:
-            raise JackboxError(f"{option} {pair!r}: cannot read {value.strip()!r}") from None
+            raise JackboxError(f"{option} {pair!r}: cannot read {value.strip()!r} (expected {form})") from None
     return out
 
 
@@ -360,7 +361,8 @@ def _study_kwargs(args) -> dict:
         raise JackboxError("--workers goes with --dask local")
     if args.dask or args.scheduler:
         gc.enable()                 # (off in the program: see console)
-    return {"perturb": _pairs(args.perturb, "--perturb", float), "sweep": _pairs(args.sweep, "--sweep", _span),
+    return {"perturb": _pairs(args.perturb, "--perturb", float, "a number"),
+            "sweep": _pairs(args.sweep, "--sweep", _span, "LOW:HIGH, e.g. restitution=0:1"),
             "t_end": args.t_end, "dt": args.dt, "seed": args.seed, "grid": args.grid, "threads": args.threads,
             "chunk": args.chunk, "scheduler": args.scheduler, "device": args.device,
             "dask_local": (args.workers or _cores()) if args.dask == "local" else None,

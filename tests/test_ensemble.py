@@ -542,7 +542,8 @@ def test_chaos_members_that_stop_early_have_no_ftle():
 
 @pytest.mark.parametrize("args, message", [
     (["--perturb", "theta_jack"], "expected NAME=VALUE"),
-    (["--sweep", "e=0.5"], "cannot read"),
+    (["--sweep", "e=0.5"], "cannot read '0.5' (expected LOW:HIGH"),
+    (["--perturb", "theta_jack=small"], "cannot read 'small' (expected a number)"),
     (["--perturb", "theta_jack=1e-6", "--workers", "2"], "--workers goes with --dask local"),
     (["--scheduler", "tcp://127.0.0.1:1", "--dask", "local"], "not allowed with"),
 ])
