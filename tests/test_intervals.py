@@ -227,3 +227,50 @@ qd = [0.0, 0.0, 0.0, 3.0, 0.0, 0.0]
 t_end = 100.0
 dt = 1e-3
 """
+
+
+@pytest.mark.parametrize("name", ["shaken", "drop", "spring", "float"])
+def test_the_lever_arms_bound_every_gaps_slope(tmp_path, name):
+    """Each coordinate's lever arm (``tol[T_SPEED + d]``: how far a unit change of it can move any gap) holds
+    every gap's slope in it, at random configurations with the jack inside its box and the box above any
+    ground. The step's travel, the exact loop's band and the lanes' gap bounds rest on it (a lever below a
+    slope lets a crossing through). And the angles' levers are the slopes' own bound times ANGLE_SPARE, not
+    a looser one (stop 66: the box's turn bounds a wall gap's slope by L, the jack point's offset along the
+    wall; a ground gap's by the box's radius): the largest slope seen comes within 10% of it.
+    """
+    from pathlib import Path
+
+    from jackbox import api, loader
+    from jackbox.engine.records import T_SPEED
+    from jackbox.engine.tolerances import ANGLE_SPARE, L_AT
+
+    from .conftest import FREE_FLOAT
+
+    scene = jackbox.load_scene(write_scene(tmp_path, FREE_FLOAT) if name == "float" else name)
+    run = api.prepare(scene)
+    kernel = loader.kernel_for(scene)
+    lever = api.tolerances(run, kernel)[T_SPEED:T_SPEED + 6]
+    path = Path(kernel.__file__)
+    model = loader.model_module(path, path.read_text())
+    assert model.N_DOF == 6 and not model.PRESCRIBED
+    L = run.p[L_AT]                                 # the box's inner half width
+    rng = np.random.default_rng(66)
+    gaps, slopes = np.empty(model.N_CONTACT), np.empty((model.N_CONTACT, 6))
+    largest = np.zeros(6)
+    inside = 0
+    for _ in range(3000):
+        tb, tj = rng.uniform(-math.pi, math.pi, 2)
+        u = rng.uniform(-L, L, 2)                   # the jack's centre in the box's frame
+        c, s = math.cos(tb), math.sin(tb)
+        xb, yb = rng.uniform(-3.0, 3.0), 50.0 * L   # (high above a ground)
+        q = np.array([xb, yb, tb, xb + c * u[0] - s * u[1], yb + s * u[0] + c * u[1], tj])
+        model.phi(0.0, q, run.p, gaps)
+        if gaps.min() < 0.0:
+            continue
+        inside += 1
+        model.phi_q(0.0, q, run.p, slopes)
+        largest = np.maximum(largest, np.abs(slopes).max(axis=0))
+    assert inside > 300
+    assert np.all(largest <= lever * (1.0 + 1e-12)), (largest, lever)
+    for d in (2, 5):
+        assert largest[d] >= 0.9 * lever[d] / ANGLE_SPARE, (d, largest[d], lever[d])

@@ -11,7 +11,7 @@ import math
 
 from numba import njit
 
-from .records import T_BOXV, T_GAP, T_SPEED
+from .records import T_BOXV, T_GAP, T_RBOX, T_SPEED
 
 
 @njit(cache=True, no_cpython_wrapper=True, inline="always")
@@ -66,15 +66,18 @@ def cubic_error(qd_a, qd_b, h, tol):
     The cubic Hermite interpolant is off by at most h^4 / 384 times the gap's
     largest fourth derivative. For bodies turning at rates w (every third
     coordinate is an angle, with lever arm ``tol[T_SPEED + d]``) that is about
-    r W^4 + 4 V W^3, W the sum of the turning rates and V that of the other
-    rates (a turning wall's normal swept along the jack's travel). Returned
+    r W^4 + 4 V W^3, W the sum of the turning rates, V that of the other
+    rates (a turning wall's normal swept along the jack's travel) and r the
+    largest lever arm of an angle or, where the box is free, its outer radius
+    (a point inside the box turns about its centre on a circle no larger:
+    the box angle's lever arm bounds a wall gap's slope only). Returned
     with a factor 16 to spare (the rates change within the step; the larger
     of the two ends is taken): 1e-6 r at w h = 0.1, where a grazing corner's
     cubic stays 1e-7 r above zero while the corner dips 1e-8 L into the wall.
     """
     w = 0.0
     v = 0.0
-    r = 0.0
+    r = tol[T_RBOX] if len(qd_a) == 6 else 0.0      # (see above: a free box's angle is the third of six)
     for d in range(len(qd_a)):
         rate = max(abs(qd_a[d]), abs(qd_b[d]))
         if d % 3 == 2:

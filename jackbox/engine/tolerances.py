@@ -45,6 +45,11 @@ FLIGHT_TOL = 1e-3
 #: a Zeno cascade (restitution e < 1, bounces against a pressing acceleration) whose remaining
 #: flights would all be over within this fraction of a step is at rest (:func:`rest_speed`)
 ZENO_TOL = 0.05
+#: the angles' lever arms (how far a unit turn can move a gap) are the largest slope of any gap times this:
+#: a step's travel is bounded by its rates at its two ends, and a turning rate may swell between them
+#: (1.5 until stop 66: each lever a body's outer radius times 1.5, the box's 2.3 times its largest slope
+#: where there is no ground; a lane's gap bound, lowered every step by the travel, ran low 17% more often)
+ANGLE_SPARE = 1.1
 #: parameter slots read here (jackbox.scene.BASE_PARAMS: m_box, J_box, L, w_box, m_jack, J_jack, g, e,
 #: e_ground), then a_jack, or each vertex's x and y of a polygon jack
 L_AT, W_BOX_AT, G_AT, JACK_AT = 2, 3, 6, 9
@@ -80,11 +85,13 @@ def set_tolerances(model, p, jack_factor, n_points, dt, boxv, out):
     if model.prescribed:
         out[T_BOXV] = boxv
     else:
-        # x, y, theta of the box
-        out[at], out[at + 1], out[at + 2] = 1.0, 1.0, 1.5 * r_box
+        # x, y, theta of the box: turning the box moves a wall's gap at most by L (the jack point's offset
+        # along the wall, inside the box), a ground gap by the corner's radius
+        turn = r_box if model.has_ground else L
+        out[at], out[at + 1], out[at + 2] = 1.0, 1.0, ANGLE_SPARE * turn
         at += 3
-    # x, y, theta of the jack
-    out[at], out[at + 1], out[at + 2] = 1.0, 1.0, 1.5 * r_jack
+    # x, y, theta of the jack: turning it moves a gap at most by its radius
+    out[at], out[at + 1], out[at + 2] = 1.0, 1.0, ANGLE_SPARE * r_jack
 
 
 @njit(cache=True, no_cpython_wrapper=True, inline="always")
