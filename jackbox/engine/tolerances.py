@@ -47,8 +47,9 @@ FLIGHT_TOL = 1e-3
 ZENO_TOL = 0.05
 #: the angles' lever arms (how far a unit turn can move a gap) are the largest slope of any gap times this:
 #: a step's travel is bounded by its rates at its two ends, and a turning rate may swell between them
-#: (1.5 until stop 66: each lever a body's outer radius times 1.5, the box's 2.3 times its largest slope
-#: where there is no ground; a lane's gap bound, lowered every step by the travel, ran low 17% more often)
+#: (until stop 66 each lever was a body's outer radius times 1.5: the box's 2.3 times its largest slope
+#: where there is no ground; in shaken a lane's gap bound, lowered every step by the travel, ran low 17%
+#: more often)
 ANGLE_SPARE = 1.1
 #: parameter slots read here (jackbox.scene.BASE_PARAMS: m_box, J_box, L, w_box, m_jack, J_jack, g, e,
 #: e_ground), then a_jack, or each vertex's x and y of a polygon jack
