@@ -27,6 +27,8 @@ signature, then compiling is switched off, so no model can make Numba build
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import importlib
 import os
 import subprocess
@@ -276,6 +278,26 @@ _binders: dict = {}
 ERROR_MODEL = "numpy"
 
 
+@contextlib.contextmanager
+def collector_paused():
+    """Python's cyclic garbage collector off while Numba compiles (on again after, if it was on).
+
+    A compile makes millions of small objects that live until it ends (Numba's
+    IR, copied whole at each inlined call, and its types), so the collector's
+    passes over the young ones found next to nothing: with it on, compiling a
+    model's held steps (``ride``, drop) took 33.7 s against 27.8 s, its peak
+    memory 389 MiB against 478 MiB. The cycles a compile leaves are collected
+    by the collector's next pass after it.
+    """
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
+
+
 def bind_part(name: str, fn):
     """A model function as the engine's function value: a ``cfunc`` of SIGNATURES[name], compiled or loaded.
 
@@ -294,7 +316,8 @@ def bind_part(name: str, fn):
         # (NumPy's error model: a division by zero in the model's terms, a shaking period T = 0 or a
         # force 1 / x_jack at x_jack = 0, gives inf or NaN, which the engine reports as a non-finite
         # state, not a ZeroDivisionError out of compiled code that an ensemble cannot even raise)
-        return numba.cfunc(SIGNATURES[name], cache=True, _nrt=False, error_model=ERROR_MODEL)(fn)
+        with collector_paused():
+            return numba.cfunc(SIGNATURES[name], cache=True, _nrt=False, error_model=ERROR_MODEL)(fn)
 
 
 def binding_name(path) -> str:
@@ -472,7 +495,7 @@ def prepare(names, loops=(), lazy: bool = False) -> str:
 
 def compile_part(name: str) -> bool:
     """Compile (or load from the cache) the one part ``name``, a loop or an entry point; True if compiled."""
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), collector_paused():
         # calls through function values: the documented, tested use, not news to a user
         warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
         if name in LOOPS:

@@ -781,9 +781,12 @@ def prepare(kernels, kind: str, rounds: bool | None = None) -> str:
     names = kind_kernels(kind, rounds, calm_mode(kernels))
     if all(getattr(kernels, name).overloads for name in names):
         return "memory"
+    from . import collector_paused
+
     hit = is_cached(kernels, kind, rounds)
-    for name in names:
-        getattr(kernels, name).compile(_signatures()[name])
+    with collector_paused():
+        for name in names:
+            getattr(kernels, name).compile(_signatures()[name])
     return "hit" if hit else "miss"
 
 
@@ -801,13 +804,16 @@ def compile_offline(kernels, name: str, cc=(9, 0), output: str = "ptx"):
     _numpy_for_numba_cuda()
     from numba.cuda import compiler, dispatcher
 
+    from . import collector_paused
+
     asked = dispatcher.get_current_device
     dispatcher.get_current_device = lambda: SimpleNamespace(compute_capability=tuple(cc))
     try:
         fn, sig = getattr(kernels, name).py_func, _signatures()[name]
-        if output == "llvm":
-            return compiler.compile_cuda(fn, None, sig, cc=tuple(cc))
-        return compiler.compile_ptx(fn, sig, cc=tuple(cc))[0]
+        with collector_paused():
+            if output == "llvm":
+                return compiler.compile_cuda(fn, None, sig, cc=tuple(cc))
+            return compiler.compile_ptx(fn, sig, cc=tuple(cc))[0]
     finally:
         dispatcher.get_current_device = asked
 
