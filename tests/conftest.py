@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 import textwrap
 from pathlib import Path
@@ -102,6 +103,22 @@ qd = [0.3, -0.2, 0.4, 2.0, 1.5, 4.0]
 t_end = 3.0
 dt = 1e-3
 """
+
+
+def with_engine(cache: Path) -> Path:
+    """``cache`` (a new cache folder) holding the suite's build of the engine, as far as it is compiled yet:
+    its machine code, not its manifest of checksums (the copies are new files). For tests of what a process
+    compiles or loads for a model, whose engine its user compiled long before: each such test compiled
+    the whole engine again in its processes (40-80 s of the suite's time). Returns ``cache``."""
+    from jackbox.engine.cache import DIGEST, cache_dir
+
+    built, kept = cache_dir() / "engine" / DIGEST, cache / "engine" / DIGEST
+    kept.mkdir(parents=True, exist_ok=True)
+    if built.is_dir():
+        for f in built.iterdir():
+            if f.suffix in (".nbi", ".nbc"):
+                shutil.copy2(f, kept / f.name)
+    return cache
 
 
 def run_cli(capsys, *argv):

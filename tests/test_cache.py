@@ -21,7 +21,7 @@ import jackbox
 from codegen import SEAL, seal
 from jackbox import engine, loader
 
-from .conftest import write_scene
+from .conftest import with_engine, write_scene
 
 #: the cheapest loop: what is cached and when is the same for every loop
 METHOD = "naive"
@@ -42,8 +42,9 @@ def test_second_process_loads_the_kernel_from_cache(tmp_path):
 def test_a_warm_process_loads_machine_code_without_numbas_lowering_registries(tmp_path):
     # Numba refreshes its target context before every cache load, importing all of its lowering
     # code (0.4 s, most of a warm start); jackbox's cache loads as is, and a compile later in the
-    # process still sees every registry (Numba's compiler refreshes the context itself).
-    env = os.environ | {"JACKBOX_CACHE_DIR": str(tmp_path)}
+    # process still sees every registry (Numba's compiler refreshes the context itself). (The engine as
+    # the suite built it: the first process compiles drop's functions, the second loads everything.)
+    env = os.environ | {"JACKBOX_CACHE_DIR": str(with_engine(tmp_path))}
     env.pop("NUMBA_DISABLE_JIT", None)
     probe = ("import sys, json, jackbox, numba; t = jackbox.simulate('drop', t_end=0.3); "
              "loaded = 'numba.np.linalg' in sys.modules; "

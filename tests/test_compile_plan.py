@@ -275,10 +275,11 @@ def test_a_prepared_run_reports_compiling_through_the_api(monkeypatch):
 
 
 def test_a_new_model_compiles_half_of_its_functions_in_a_helper(tmp_path, monkeypatch):
-    from .conftest import write_scene
+    from .conftest import with_engine, write_scene
     from .test_cache import drop_of_its_own
 
-    monkeypatch.setenv("JACKBOX_CACHE_DIR", str(tmp_path / "cache"))
+    # (the engine as the suite built it, for the helper's process: a new model on a machine that has one)
+    monkeypatch.setenv("JACKBOX_CACHE_DIR", str(with_engine(tmp_path / "cache")))
     monkeypatch.setenv("JACKBOX_COMPILE_JOBS", "2")
     monkeypatch.setattr(loader, "_loaded", {})
     monkeypatch.setattr(loader, "_stamped", {})
