@@ -105,20 +105,18 @@ dt = 1e-3
 """
 
 
-def with_engine(cache: Path) -> Path:
-    """``cache`` (a new cache folder) holding the suite's build of the engine, as far as it is compiled yet:
+def with_engine(folder: Path) -> Path:
+    """``folder`` (a new cache folder) holding the suite's build of the engine, as far as it is compiled yet:
     its machine code, not its manifest of checksums (the copies are new files). For tests of what a process
     compiles or loads for a model, whose engine its user compiled long before: each such test compiled
-    the whole engine again in its processes (40-80 s of the suite's time). Returns ``cache``."""
-    from jackbox.engine.cache import DIGEST, cache_dir
+    the whole engine again in its processes (40-80 s of the suite's time). Returns ``folder``."""
+    from jackbox.engine import cache
 
-    built, kept = cache_dir() / "engine" / DIGEST, cache / "engine" / DIGEST
+    kept = folder / "engine" / cache.DIGEST
     kept.mkdir(parents=True, exist_ok=True)
-    if built.is_dir():
-        for f in built.iterdir():
-            if f.suffix in (".nbi", ".nbc"):
-                shutil.copy2(f, kept / f.name)
-    return cache
+    for f in cache.files():
+        shutil.copy2(f, kept / f.name)
+    return folder
 
 
 def run_cli(capsys, *argv):

@@ -135,10 +135,9 @@ def test_held_steps_on_floats_and_on_arrays_give_the_same_numbers(name, over, al
     corner = "        q, qd, pose, fac, factored = settle("
     assert text.count("RIDE = True") == 1 and text.count(settling) == 1 and text.count(corner) == 1
     off = text.replace("RIDE = True", "RIDE = False")
-    if name in IN_CORNERS:
-        nudged = text.replace(corner, "        if m > 2:\n            qdb = axpy_s(1e-9, qdb, qdb)\n" + corner)
-    else:
-        nudged = text.replace(settling, "        qdb = axpy_s(1e-9, qdb, qdb)\n" + settling)
+    nudge = "        qdb = axpy_s(1e-9, qdb, qdb)\n"
+    nudged = (text.replace(corner, "        if m > 2:\n    " + nudge + corner) if name in IN_CORNERS
+              else text.replace(settling, nudge + settling))
     model_file = loader.ensure_model(scene)
     whole = api.prepare(scene)
     run = api.prepare(scene, t_end=min(whole.n_steps * whole.dt, 6.0))
