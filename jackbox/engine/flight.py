@@ -37,9 +37,6 @@ from jackbox.engine.records import (COAST as _COAST, DRIFT as _DRIFT, REPASS as 
 #: skip the gap rows of steps whose bounding circles are far from contact
 #: (the benchmark compiles a copy with False to show the gain)
 BROAD_PHASE = True
-#: take held steps on one to four contacts on floats (:func:`ride`); with False the held loop takes every
-#: held step on its arrays (the tests compile a copy so, and compare: the same numbers)
-RIDE = True
 
 
 def rk4_stages(q, qd, dt, p, ta, tta, tm, ttm, tb, ttb):
@@ -443,8 +440,6 @@ def ride(t0, dt, i, i_stop, q_io, qd_io, p, tol, rest, m, k1, k2, winv, io_f, re
     solve skipped (:func:`held_stage`), one in a corner 0.8 of that.
     """
     io_k[1] = 0
-    if not RIDE:
-        return i
     low, n_rec = io_f[0], io_k[0]
     half = 0.5 * tol[_T_EVENT]
     deep = half + tol[_T_EVENT]
