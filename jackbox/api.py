@@ -319,6 +319,13 @@ def run_prepared(run: Run, *, progress: bool = False, log=None) -> Trajectory:
                     f"{run.scene.name}: the state became non-finite at step {i} (t = {i * run.dt:.6g} s); "
                     f"last recorded sample at t = {rec_t[n_rec - 1]:.6g} s. Try a smaller dt "
                     f"(now {run.dt:g}) or check the forces and parameters.")
+            elif status == K.INSIDE:        # (a gap THROUGH L below contact: it stopped there)
+                pose = q
+                if kernel.PRESCRIBED:       # (q: the jack's alone; the box's from its motion)
+                    box = np.empty(6)
+                    kernel.jit("box_motion")(i * run.dt, run.p, box)
+                    pose = np.concatenate([box[:3], q])
+                raise RunStoppedError(through_a_wall(run, i * run.dt, pose))
             elif status != K.DONE:
                 raise RunStoppedError(f"{run.scene.name}: the kernel stopped at step {i} (t = {i * run.dt:.6g} s) "
                                       f"with status {status}")
@@ -390,11 +397,16 @@ def check_inside(run: Run, t: np.ndarray, q: np.ndarray) -> None:
     looked = np.unique(np.linspace(0, len(t) - 1, min(len(t), INSIDE_SAMPLES)).round().astype(int))
     bad = looked[inside(scene, q[looked], P)]
     if len(bad):
-        i = bad[0]
-        gaps = contact_gaps(q[i], jack_points(scene, P), P["L"], P["w_box"], scene.has_ground_contacts)
-        worst, L = int(np.argmin(gaps)), P["L"]
-        raise RunStoppedError(
-            f"{scene.name}: at t = {t[i]:.6g} s contact {scene.constraint_names[worst]!r} is "
+        raise RunStoppedError(through_a_wall(run, t[bad[0]], q[bad[0]]))
+
+
+def through_a_wall(run: Run, t: float, q: np.ndarray) -> str:
+    """What to tell a user whose run was found at time t in the state q, inside a wall or under the ground."""
+    scene = run.scene
+    P = dict(zip(scene.param_names, run.p.tolist()))
+    gaps = contact_gaps(q, jack_points(scene, P), P["L"], P["w_box"], scene.has_ground_contacts)
+    worst, L = int(np.argmin(gaps)), P["L"]
+    return (f"{scene.name}: at t = {t:.6g} s contact {scene.constraint_names[worst]!r} is "
             f"{-gaps[worst]:.3g} inside ({-gaps[worst] / L:.3g} L): the run went through a wall unseen. "
             f"Its forces or masses are beyond what a step of dt = {run.dt:g} s resolves: try a smaller dt "
             f"or check the parameters")

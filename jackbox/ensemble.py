@@ -239,7 +239,7 @@ def run_chaos_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.n
     # dynamics (the twin is put back next to the reference at each renormalisation, so the reference's final
     # state speaks for both)
     _, inside = _unfinished(spec.scene, status, fin_q, fin_qd, rows["params"])
-    stretch[inside] = np.nan
+    stretch[inside | (status == K.INSIDE)] = np.nan      # (stopped by the loop where it went through, or after)
     return {"stretch": stretch, "impacts": fin[:, 0].astype(np.int64), "status": status,
             "steps": fin[:, 2].astype(np.int64), "fallback": fin[:, 3].copy(), "warnings": fin[:, 4].astype(np.int64),
             "q": fin_q, "qd": fin_qd,

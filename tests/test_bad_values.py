@@ -9,13 +9,15 @@ two names silently lost one of them, and chaos twins closer than round-off
 gave exponents of nothing.
 """
 
+import re
+
 import numpy as np
 import pytest
 
 import jackbox
 from jackbox.engine import DONE, NONFINITE
 from jackbox.ensemble import chaos, ensemble
-from jackbox.errors import NonFiniteStateError, SimulationError
+from jackbox.errors import NonFiniteStateError, RunStoppedError, SimulationError
 
 from .conftest import PRESCRIBED, run_cli, write_scene
 
@@ -278,15 +280,23 @@ def test_a_step_that_falls_far_beyond_the_box_stops_the_run(g, tmp_path, capsys)
 def test_ensemble_members_that_went_through_a_wall_unseen_say_so():
     # the ensemble counterpart of the single run's check: every member of drop at g = 1e20 ended
     # 1e13 L inside a wall with status done (now: a box of inertia 1e-12, which the exact method lets through
-    # at t = 0.43 s; each member then goes on inside the ground to its end, slowly: to 0.5 s, 6 s a member)
-    from jackbox.engine import INSIDE
+    # at t = 0.43 s). Each member stops there, at the step that found a gap THROUGH L below contact: before,
+    # it went on inside the ground to its end, slowly (to 0.5 s, 6 s a member)
+    from jackbox.engine import INSIDE, THROUGH
     from jackbox.scene import contact_gaps, contact_gaps_many
 
     thin = jackbox.load_scene("drop", {"box.inertia": 1e-12})
-    t_end = 0.45
+    t_end = 0.5
     ens = ensemble(thin, 3, t_end=t_end, lanes=False)
     assert list(ens.status) == [INSIDE] * 3 and np.isnan(ens.q).all()
     assert "through a wall unseen" in ens.summary()
+    # where it stopped: the member alone says it is THROUGH L or more inside the ground at that step
+    stopped = ens.steps[0] * thin.dt
+    assert list(ens.steps) == [ens.steps[0]] * 3 and 0.4 < stopped < t_end - 0.05
+    with pytest.raises(RunStoppedError, match=f"at t = {stopped:.6g} s contact 'ground") as caught:
+        ens.trajectory(0)
+    depth = float(re.search(r"\(([0-9.e+-]+) L\)", str(caught.value)).group(1))
+    assert depth >= THROUGH
     # and a chaos study of the same (at g = 1e12 it was 2.2 L inside the ground by t = 0.009 s): the pairs'
     # stretches measured the tunnelling, not the dynamics
     for lanes in (False, True):

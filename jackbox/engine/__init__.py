@@ -50,7 +50,7 @@ from .records import (TABLE, CROSSING, EXACT, FALLBACK_STEP, HOLD, NAIVE, RELEAS
                       FALLBACK, HANDOFF_DENSE, HANDOFF_EVENTS, HANDOFF_MODES, HANDOFF_STUCK, HANDOFF_ZENO, IMPACT_LOG_FULL, INSIDE,
                       MISSING, NEED_FALLBACK, NEED_HOLD, NEED_RELEASE, IMPULSE, MAX_EVENTS,
                       MODE_SLOTS, NONFINITE, RELEASE, REST, STALLED, T_AREST, T_BOXV, T_EVENT,
-                      T_GAP, T_RBOX, T_RJACK, T_SPEED, T_VREST, T_WALL, TWIN_FIN, WARN_LCP, WARN_LOCATE, WARNING, Events, F8, I1,
+                      T_GAP, T_RBOX, T_RJACK, T_SPEED, T_VREST, T_WALL, THROUGH, TWIN_FIN, WARN_LCP, WARN_LOCATE, WARNING, Events, F8, I1,
                       I2, I8, Model, Samples, Setup, SetupType, SIGNATURES, SIZES, V1, V2)
 
 V3 = types.Array(F8, 3, "C")
@@ -110,7 +110,7 @@ HELPER_START = 0.5
 #: a part -> the helper process compiling it now (see start)
 _helpers: dict = {}
 
-__all__ = ["DONE", "INSIDE", "HANDOFF_STUCK", "HANDOFF_MODES", "HANDOFF_ZENO", "HANDOFF_EVENTS", "HANDOFF_DENSE", "IMPACT_LOG_FULL", "MISSING", "NONFINITE", "STALLED", "IMPULSE", "REST", "RELEASE", "FALLBACK", "WARNING",
+__all__ = ["DONE", "INSIDE", "THROUGH", "HANDOFF_STUCK", "HANDOFF_MODES", "HANDOFF_ZENO", "HANDOFF_EVENTS", "HANDOFF_DENSE", "IMPACT_LOG_FULL", "MISSING", "NONFINITE", "STALLED", "IMPULSE", "REST", "RELEASE", "FALLBACK", "WARNING",
            "WARN_LCP", "WARN_LOCATE", "MAX_EVENTS", "MODE_SLOTS", "T_GAP", "T_EVENT", "T_VREST", "T_AREST", "T_BOXV", "T_WALL", "T_RJACK", "T_RBOX", "T_SPEED", "TWIN_FIN",
            "Model", "Samples", "Events", "Setup", "LANES", "SIGNATURES", "SIZES", "ENTRIES", "LOOPS", "LAZY", "RESUME", "entry", "compiled_loop", "prepare", "start", "start_binding", "wait_binding", "bind_part",
            "binding_name", "table"]

@@ -42,10 +42,10 @@ from .integrator import held_passes, rk4_rows
 from .modes import held_accel, log_event, on_level, project_rest, rest_index, settle_rows
 from .records import (AF, COAST, DENSE_AT, DENSE_SLOW, DENSE_FLOOR, DENSE_SCORE, DONE, DRIFT, EXACT_AT, FALLBACK, FLAGS, GA, GB,
                       HANDOFF, HANDOFF_AT, HANDOFF_DENSE, HANDOFF_EVENTS, HANDOFF_MODES, HANDOFF_STUCK, HANDOFF_ZENO,
-                      IMPACT_LOG_FULL, LAM, LS, MAX_EVENTS, MISSING, MODE_AT, MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT,
+                      IMPACT_LOG_FULL, INSIDE, LAM, LS, MAX_EVENTS, MISSING, MODE_AT, MODE_BUDGET, MODE_SLOTS, MODEL_AT, NAIVE_AT,
                       NEED_FALLBACK, NEED_HOLD, NEED_RELEASE, NONFINITE, PASSES_AT, Q0, QB, QD0, QDB, QDS, QS, RELEASE,
                       RIDE_F, RIDE_K,
-                      RHS, RIDX, RINV, SET_AT, SLOW_AT, STAGES_AT, SWAP_BUDGET, T_AREST, T_EVENT, T_RBOX, T_SPEED, T_WALL, WARN_LCP, WARN_LOCATE,
+                      RHS, RIDX, RINV, SET_AT, SLOW_AT, STAGES_AT, SWAP_BUDGET, T_AREST, T_EVENT, T_RBOX, T_SPEED, T_WALL, THROUGH, WARN_LCP, WARN_LOCATE,
                       WARNING, WINV, ZENO_PASSES, ZENO_SPAN, Events, ExactType, ModelType, NaiveType, Samples, StagesType,
                       borrow, from_table, keep, scratch)
 from .gaps import step_reach
@@ -525,6 +525,16 @@ def vanish(a, n, tol, still):
 
 
 @njit(cache=True, no_cpython_wrapper=True)
+def went_through(g, C, tol):
+    """Whether one of the gaps g is more than THROUGH L below contact: the run went through a wall unseen."""
+    deep = -THROUGH * tol[T_WALL]
+    for k in range(C):
+        if g[k] < deep:
+            return True
+    return False
+
+
+@njit(cache=True, no_cpython_wrapper=True)
 def lowest_free(g, rest, C):
     """The smallest of the gaps g of the contacts that are not held (inf if every one is)."""
     low = math.inf
@@ -661,6 +671,9 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
             ga_ok = False
             have_trial = False
         if rest[C + MODE_AT] > 0:
+            model.phi(t, q, p, gb)
+            if went_through(gb, C, tol):
+                return i, n_rec, n_ev, INSIDE
             n_ev, m = stages.fallback(model, stages.update, t, dt, q, qd, p, tol, rest, ws, log, n_ev)
             ga_ok = False
         else:
@@ -669,6 +682,8 @@ def exact_steps(model, stages, q, qd, rest, p, tol, t0, dt, i_begin, i_end, n_to
             if not ga_ok:
                 model.phi(t, q, p, ga)
                 ga_ok = True
+            if went_through(ga, C, tol):      # (on it would go inside the wall, slowly)
+                return i, n_rec, n_ev, INSIDE
             quiet = False
             trial = held_trial
             if m == 0:
