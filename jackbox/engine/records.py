@@ -30,10 +30,11 @@ INSIDE = 6              #: a run went through a wall unseen: the exact loop stop
                         #: below contact (loop.went_through), and an ensemble's check of its members' final
                         #: states says so of one a little inside (jackbox.api.INSIDE_LIMIT)
 #: how far below contact (in box half-widths L) a gap says that the run went through a wall unseen (forces or
-#: masses beyond what its step resolves): ten million times the event band, where contacts are held, and a
-#: thousand times the deepest that a member of the random scenes' campaigns ever reached (1e-9 L, in the
-#: fallback). A member that went through went on inside the wall, slowly: a box of inertia 1e-12 through
-#: the ground at 0.43 s spent 6 s a member on 0.07 s more of drop, 166 impulses and all of it in the fallback
+#: masses beyond what its step resolves): a billion times the event band T_EVENT (1e-12 L; contacts are held
+#: half of it below contact), a million times the deepest gap the random scenes' checks allow (1e-9 L,
+#: tests/test_stress.py, benchmarks/campaign.py). A member that went through went on inside the wall,
+#: slowly: a box of inertia 1e-12 through the ground at 0.43 s spent 6 s a member on 0.07 s more of drop,
+#: 166 impulses, all of it in the fallback
 THROUGH = 1e-3
 
 #: where a chaos pair's summary row (members.run_twins' fin) has the reference's six final coordinates, then its
