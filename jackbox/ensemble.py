@@ -235,11 +235,11 @@ def run_chaos_chunk(spec: EnsembleSpec, start: int, stop: int) -> dict[str, np.n
     status = fin[:, 1].astype(np.int64)
     fin_q = fin[:, K.TWIN_FIN:K.TWIN_FIN + 6].copy()      # (six coordinates, a prescribed box's included)
     fin_qd = fin[:, K.TWIN_FIN + 6:].copy()
-    # a pair whose reference ended inside a wall went through it unseen: its stretches measure that, not the
-    # dynamics (the twin is put back next to the reference at each renormalisation, so the reference's final
-    # state speaks for both)
-    _, inside = _unfinished(spec.scene, status, fin_q, fin_qd, rows["params"])
-    stretch[inside | (status == K.INSIDE)] = np.nan      # (stopped by the loop where it went through, or after)
+    # a pair that went through a wall unseen (the loop stopped it there, or its reference ended inside one:
+    # _unfinished marks both INSIDE) has stretches that measure that, not the dynamics (the twin is put back
+    # next to the reference at each renormalisation, so the reference's final state speaks for both)
+    _unfinished(spec.scene, status, fin_q, fin_qd, rows["params"])
+    stretch[status == K.INSIDE] = np.nan
     return {"stretch": stretch, "impacts": fin[:, 0].astype(np.int64), "status": status,
             "steps": fin[:, 2].astype(np.int64), "fallback": fin[:, 3].copy(), "warnings": fin[:, 4].astype(np.int64),
             "q": fin_q, "qd": fin_qd,
